@@ -1,0 +1,40 @@
+"""Building frozen config dataclasses from plain mappings with strict key checking."""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from collections.abc import Mapping
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+class UnknownKeyError(KeyError, ValueError):
+    """A mapping names a field the target dataclass does not have."""
+
+    def __str__(self) -> str:  # KeyError would repr() the message
+        return str(self.args[0])
+
+
+def check_keys(keys: Any, allowed: Any, where: str) -> None:
+    """Raise :class:`UnknownKeyError` for the first key not in ``allowed``.
+
+    The message names ``where`` (a file, a section or a class) and suggests the closest
+    allowed key ("did you mean ...?").
+    """
+    allowed = list(allowed)
+    for key in keys:
+        if key not in allowed:
+            close = difflib.get_close_matches(str(key), [str(a) for a in allowed], n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise UnknownKeyError(
+                f"{where}: unknown key {key!r}{hint} (allowed: {', '.join(sorted(allowed))})"
+            )
+
+
+def dataclass_from_dict(cls: type[T], data: Mapping[str, Any], where: str | None = None) -> T:
+    """Build the dataclass ``cls`` from ``data``; unknown keys raise with a suggestion."""
+    names = [f.name for f in dataclasses.fields(cls) if f.init]  # type: ignore[arg-type]
+    check_keys(data.keys(), names, where or cls.__name__)
+    return cls(**dict(data))
