@@ -34,8 +34,12 @@ import numpy as np
 from scipy.stats import chi2
 
 from vslam_gym.slam.config import ModelConfig, SensorConfig
-from vslam_gym.slam.gaussian import Linearization, make_linearization, symmetrize
-from vslam_gym.slam.geometry import fit_line
+from vslam_gym.slam.gaussian import (
+    FirstOrderLinearization,
+    Linearization,
+    make_linearization,
+    symmetrize,
+)
 from vslam_gym.slam.landmark import LandmarkModel, ModelFit, conditional_on_pose
 from vslam_gym.slam.likelihood import object_loglik, range_error_distribution
 from vslam_gym.slam.scan import Scan
@@ -77,7 +81,7 @@ def _oriented_line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     it varies continuously between sigma points (the raw angle ``psi`` of the fit lives
     in ``[0, pi]`` and flips for nearly horizontal lines).
     """
-    p0, psi = fit_line(points)
+    p0, psi = _principal_axis(points)
     d = np.stack([np.cos(psi), np.sin(psi)], axis=-1)
     span = points[..., -1, :] - points[..., 0, :]
     sign = np.where(np.sum(d * span, axis=-1) < 0.0, -1.0, 1.0)
@@ -94,7 +98,115 @@ def _intersect(pa, da, pb, db):
     return pa + t[..., None] * da, np.abs(cross) / norms
 
 
+def _principal_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unvalidated total-least-squares line ``(p0, psi)`` of ``(..., n, 2)`` points.
+
+    The same line as :func:`~vslam_gym.slam.geometry.fit_line` (SPEC section 2: the
+    principal axis of the scatter matrix) without its input checks, for the hot paths;
+    ``psi`` lies in ``(-pi/2, pi/2]``.
+    """
+    p0 = points.mean(axis=-2)
+    e = points - p0[..., None, :]
+    ex, ey = e[..., 0], e[..., 1]
+    sxx, syy, sxy = (ex * ex).sum(-1), (ey * ey).sum(-1), (ex * ey).sum(-1)
+    return p0, 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+
+
+class _FirstOrderLines:
+    """Closed-form first-order log-likelihoods of beams on fitted lines (hot path).
+
+    Equivalent to the generic first-order path of :meth:`_SegmentModeller.evaluate_line`
+    (line fitted by total least squares, its uncertainty propagated from the points'
+    Cartesian covariances, the range error linearised in the beam's bearing and the
+    line), but in closed form and batched over many candidate lines at once. The line
+    is parameterised by its offset ``rho`` along the normal at ``p0`` and its angle
+    ``psi``: ``d rho / d z_k = n^T / n_pts``, ``d psi / d z_k = ((d.e_k) n + (n.e_k) d)^T
+    / (lambda_1 - lambda_2)``.
+    """
+
+    def __init__(self, modeller: _SegmentModeller, point_cov: np.ndarray) -> None:
+        pose = modeller.pose
+        self.pts = _points(modeller.z, pose)
+        self.cov = point_cov
+        self.ranges = modeller.z[0::2]
+        angle = pose[2] + modeller.z[1::2]
+        self.u = np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+        self.pos = pose[:2]
+        self.var_r = modeller.sensor.sigma_range**2
+        self.var_phi = modeller.sensor.sigma_bearing**2
+
+    def loglik(self, spans: list[tuple[int, int]]) -> list[np.ndarray]:
+        """Per-beam log-likelihoods for each inclusive local span ``(a, b)``."""
+        spans_arr = np.asarray(spans, dtype=int)
+        lengths = spans_arr[:, 1] - spans_arr[:, 0] + 1
+        width = int(lengths.max())
+        idx = spans_arr[:, :1] + np.arange(width)
+        mask = np.arange(width) < lengths[:, None]
+        idx = np.minimum(idx, self.pts.shape[0] - 1)
+        w = mask.astype(float)
+        cnt = lengths.astype(float)
+        pts = self.pts[idx]
+        p0 = (w[..., None] * pts).sum(axis=1) / cnt[:, None]
+        e = (pts - p0[:, None, :]) * w[..., None]
+        ex, ey = e[..., 0], e[..., 1]
+        sxx, syy, sxy = (ex * ex).sum(1), (ey * ey).sum(1), (ex * ey).sum(1)
+        psi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+        gap = np.sqrt((sxx - syy) ** 2 + 4.0 * sxy**2)
+        dx, dy = np.cos(psi)[:, None], np.sin(psi)[:, None]  # direction; normal (-dy, dx)
+        de = ex * dx + ey * dy
+        ne = ey * dx - ex * dy
+        gx = (de * -dy + ne * dx) / gap[:, None]
+        gy = (de * dx + ne * dy) / gap[:, None]
+        cov = self.cov[idx]
+        cxx, cxy, cyy = cov[..., 0, 0] * w, cov[..., 0, 1] * w, cov[..., 1, 1] * w
+        # C n, with n = (-dy, dx)
+        cnx, cny = -cxx * dy + cxy * dx, -cxy * dy + cyy * dx
+        s_rr = (cnx * -dy + cny * dx).sum(1) / cnt**2
+        s_rp = (cnx * gx + cny * gy).sum(1) / cnt
+        s_pp = (gx * (cxx * gx + cxy * gy) + gy * (cxy * gx + cyy * gy)).sum(1)
+        ux, uy = self.u[idx, 0], self.u[idx, 1]
+        r = self.ranges[idx]
+        den = -ux * dy + uy * dx  # n . u
+        off = (p0[:, 0:1] - self.pos[0]) * -dy + (p0[:, 1:2] - self.pos[1]) * dx
+        r_exp = off / den
+        j_rho = 1.0 / den
+        hx = self.pos[0] + r_exp * ux - p0[:, 0:1]
+        hy = self.pos[1] + r_exp * uy - p0[:, 1:2]
+        j_psi = (hx * dx + hy * dy) / den
+        j_phi = -r_exp * (uy * dy + ux * dx) / den  # n . u_perp = u . d
+        var = (
+            self.var_r
+            + j_phi**2 * self.var_phi
+            + j_rho**2 * s_rr[:, None]
+            + 2.0 * j_rho * j_psi * s_rp[:, None]
+            + j_psi**2 * s_pp[:, None]
+        )
+        err = r - r_exp
+        ll = -0.5 * (np.log(2.0 * np.pi * var) + err**2 / var)
+        return [ll[i, : lengths[i]] for i in range(len(spans))]
+
+
 # ------------------------------------------------------------------ Algorithm 3
+
+
+def _polar_point_distribution(
+    zp: np.ndarray, pose: np.ndarray, sensor: SensorConfig, lin: Linearization
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cartesian Gaussians of independent polar measurements ``zp`` ``(q, 2)`` (3.2.2).
+
+    First order in closed form (``J Q J^T``); otherwise through ``lin`` (the UT), batched.
+    Zero-range points come out rank 1 (no bearing spread).
+    """
+    r, a = zp[:, 0], pose[2] + zp[:, 1]
+    c, s_ = np.cos(a), np.sin(a)
+    mu = np.stack([pose[0] + r * c, pose[1] + r * s_], axis=-1)
+    jac = np.stack([np.stack([c, -r * s_], -1), np.stack([s_, r * c], -1)], axis=-2)
+    cov = (jac * np.diag(sensor.Q)) @ np.swapaxes(jac, -1, -2)
+    ut = ~(zp[:, 0] == 0.0) if not isinstance(lin, FirstOrderLinearization) else None
+    if ut is not None and np.any(ut):
+        q = np.broadcast_to(sensor.Q, (int(ut.sum()), 2, 2))
+        mu[ut], cov[ut] = lin.propagate(lambda x: _points(x, pose)[..., 0, :], zp[ut], q)
+    return mu, cov
 
 
 def point_covariances(
@@ -109,9 +221,7 @@ def point_covariances(
     Returns:
         ``(mu, Sigma)``: ``(n, 2)`` world-frame means [m] and ``(n, 2, 2)`` covariances.
     """
-    zp = z.reshape(-1, 2)
-    cov = np.broadcast_to(sensor.Q, (zp.shape[0], 2, 2))
-    return lin.propagate(lambda x: _points(x, pose)[..., 0, :], zp, cov)
+    return _polar_point_distribution(z.reshape(-1, 2), pose, sensor, lin)
 
 
 def initial_grouping(
@@ -128,14 +238,22 @@ def initial_grouping(
     """
     n = mu_c.shape[0]
     start = config.min_group_size - 1
+    # Prefix sums make each trial line fit O(1); the distance test stays vectorised.
+    x, y = mu_c[:, 0], mu_c[:, 1]
+    cs = np.zeros((6, n + 1))
+    np.cumsum([np.ones(n), x, y, x * x, y * y, x * y], axis=1, out=cs[:, 1:])
+    cxx, cxy, cyy = cov_c[:, 0, 0], cov_c[:, 0, 1], cov_c[:, 1, 1]
+    limit = config.grouping_mahalanobis**2
     groups: list[tuple[int, int]] = []
     a, b = 0, start
     while b < n:
-        p0, psi = fit_line(mu_c[a : b + 1])
-        normal = np.array([-np.sin(psi), np.cos(psi)])
-        mu_d = (mu_c[a : b + 1] - p0) @ normal
-        var_d = np.einsum("i,nij,j->n", normal, cov_c[a : b + 1], normal)
-        if np.all(mu_d**2 <= config.grouping_mahalanobis**2 * var_d):
+        cnt, sx, sy, sxx, syy, sxy = cs[:, b + 1] - cs[:, a]
+        mx, my = sx / cnt, sy / cnt
+        psi = 0.5 * np.arctan2(2.0 * (sxy - sx * my), (sxx - sx * mx) - (syy - sy * my))
+        nx, ny = -np.sin(psi), np.cos(psi)
+        mu_d = (x[a : b + 1] - mx) * nx + (y[a : b + 1] - my) * ny
+        var_d = nx * nx * cxx[a : b + 1] + 2.0 * nx * ny * cxy[a : b + 1] + ny * ny * cyy[a : b + 1]
+        if np.all(mu_d * mu_d <= limit * var_d):
             b += 1
         else:
             groups.append((a, b - 1))
@@ -155,10 +273,10 @@ class _LineEval:
     a: int
     b: int
     loglik: np.ndarray  # (b - a + 1,)
+    total: float = 0.0
 
-    @property
-    def total(self) -> float:
-        return float(self.loglik.sum())
+    def __post_init__(self) -> None:
+        self.total = float(self.loglik.sum())
 
 
 class _SegmentModeller:
@@ -180,6 +298,13 @@ class _SegmentModeller:
         self.z, self.cov = stacked_measurements(scan, first, last, sensor)
         self.n = last - first + 1
         self.point_cov = np.zeros((self.n, 2, 2))
+        self.fast: _FirstOrderLines | None = None
+
+    def use_point_covariances(self, point_cov: np.ndarray) -> None:
+        """Store the Cartesian point covariances; enable the closed-form first order."""
+        self.point_cov = point_cov
+        if isinstance(self.lin, FirstOrderLinearization):
+            self.fast = _FirstOrderLines(self, point_cov)
 
     def line_distribution(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
         """Gaussian of ``(p0, p1)`` ``(4,)`` of the line fitted to local beams ``a..b``.
@@ -211,11 +336,22 @@ class _SegmentModeller:
         )
         return _LineEval(a, b, object_loglik(mu_err, var_err))
 
+    def evaluate_lines(self, spans: list[tuple[int, int]]) -> list[_LineEval]:
+        """:meth:`evaluate_line` for many spans; closed form and batched for first order."""
+        if not spans:
+            return []
+        if self.fast is None:
+            return [self.evaluate_line(a, b) for a, b in spans]
+        return [
+            _LineEval(a, b, ll) for (a, b), ll in zip(spans, self.fast.loglik(spans), strict=True)
+        ]
+
     def bic(self, lines: list[_LineEval]) -> float:
         """BIC score (3.2.26) of a model made of ``lines``, shared measurements once."""
         m = len(lines)
         k = m + 1
         dup = sum(min(lines[j].loglik[-1], lines[j + 1].loglik[0]) for j in range(m - 1))
+        dup = float(dup)
         n_params = 2 * k**2 + 3 * k
         penalty = self.config.alpha_bic * 0.5 * n_params * np.log(2 * self.n)
         return sum(line.total for line in lines) - dup - penalty
@@ -231,23 +367,33 @@ def select_model(
     """
     cache: dict[tuple[int, int], _LineEval] = {}
 
-    def evaluate(a: int, b: int) -> _LineEval:
-        if (a, b) not in cache:
-            cache[(a, b)] = modeller.evaluate_line(a, b)
-        return cache[(a, b)]
+    def evaluate(spans: list[tuple[int, int]]) -> None:
+        new = [sp for sp in dict.fromkeys(spans) if sp not in cache]
+        for line in modeller.evaluate_lines(new):
+            cache[(line.a, line.b)] = line
 
-    lines = [evaluate(a, b) for a, b in groups]
+    pairs = [(groups[j][0], groups[j + 1][1]) for j in range(len(groups) - 1)]
+    evaluate(list(groups) + pairs)
+    lines = [cache[g] for g in groups]
     bic = np.full(len(lines), -np.inf)
     best_groups = {len(lines): [(ln.a, ln.b) for ln in lines]}
     bic[len(lines) - 1] = modeller.bic(lines)
+
+    def loss(j: int) -> float:
+        """Log-likelihood lost by joining lines ``j`` and ``j + 1`` (Algorithm 2)."""
+        joined = cache[(lines[j].a, lines[j + 1].b)]
+        dup = min(lines[j].loglik[-1], lines[j + 1].loglik[0])
+        return lines[j].total + lines[j + 1].total - dup - joined.total
+
+    losses = [loss(j) for j in range(len(lines) - 1)]
     while len(lines) > 1:
-        losses = []
-        for j in range(len(lines) - 1):
-            joined = evaluate(lines[j].a, lines[j + 1].b)
-            dup = min(lines[j].loglik[-1], lines[j + 1].loglik[0])
-            losses.append(lines[j].total + lines[j + 1].total - dup - joined.total)
         j = int(np.argmin(losses))
-        lines[j : j + 2] = [evaluate(lines[j].a, lines[j + 1].b)]
+        lines[j : j + 2] = [cache[(lines[j].a, lines[j + 1].b)]]
+        del losses[j]
+        touched = [i for i in (j - 1, j) if 0 <= i < len(lines) - 1]
+        evaluate([(lines[i].a, lines[i + 1].b) for i in touched])
+        for i in touched:
+            losses[i] = loss(i)
         best_groups[len(lines)] = [(ln.a, ln.b) for ln in lines]
         bic[len(lines) - 1] = modeller.bic(lines)
     return best_groups[int(np.argmax(bic)) + 1], bic
@@ -313,7 +459,7 @@ def fit_slices(
             continue
         residual = []
         for a, b in ((left[0], lo - 1), (hi + 1, right[1])):
-            p0, psi = fit_line(points[a : b + 1])
+            p0, psi = _principal_axis(points[a : b + 1])
             normal = np.array([-np.sin(psi), np.cos(psi)])
             residual.append(((points[lo - 1 : hi + 2] - p0) @ normal) ** 2)
         # split after local index k: points lo-1..k on the left, k+1..hi+1 on the right
@@ -379,8 +525,92 @@ def vertex_distribution(
         )
         z = np.concatenate([z, np.zeros(len(slices))])
         cov = np.diag(np.concatenate([np.diag(cov), modeller.config.coarseness**2 * var]))
+    if modeller.fast is not None:
+        mu, sigma = _first_order_vertices(modeller, slices, np.diag(cov)[2 * modeller.n :])
+        return groups, mu, sigma
     mu, sigma = modeller.lin.propagate(_vertex_function(slices, modeller.pose, modeller.n), z, cov)
     return groups, mu.reshape(-1, 2), sigma
+
+
+def _first_order_vertices(
+    modeller: _SegmentModeller, slices: list[tuple[int, int]], offset_var: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form first-order vertex distribution (hot path of :func:`vertex_distribution`).
+
+    Every line is ``n . x = c`` with unit normal ``n``. An object line moves with its
+    offset ``rho`` along ``n`` and its angle ``psi`` about its centroid ``p0`` (the
+    derivatives of :class:`_FirstOrderLines`, plus the model-error offset of
+    :func:`coarseness_variances`); an end line is the first or last beam's ray, so it
+    turns with that beam's bearing only. A vertex solves ``M v = c`` for its two lines,
+    so ``dv = M^-1 (dc - dM v)``: ``dv/drho_A = M^-1 e_A`` and
+    ``dv/dpsi_A = M^-1 e_A * d_A . (v - p_A)`` for rotation about ``p_A``.
+
+    Returns:
+        ``(m + 1, 2)`` vertex means [m] and their ``(2m + 2, 2m + 2)`` covariance.
+    """
+    pose, n = modeller.pose, modeller.n
+    pts = _points(modeller.z, pose)
+    m = len(slices)
+    n_in = 2 * n + offset_var.size
+    # Line k = 0..m+1: k = 0 left end, 1..m object lines, m + 1 right end. Each line's
+    # Jacobian rows: d rho (1, n_in) and d psi (1, n_in); p (2,), direction d (2,).
+    lines_p, lines_d, j_rho, j_psi = [], [], [], []
+    angle0, angle1 = pose[2] + modeller.z[1], pose[2] + modeller.z[-1]
+    end_rows = {}
+    for key, angle, col in (("left", angle0, 1), ("right", angle1, 2 * n - 1)):
+        row_psi = np.zeros(n_in)
+        row_psi[col] = 1.0
+        end_rows[key] = (np.array([np.cos(angle), np.sin(angle)]), row_psi)
+    d_left, psi_left = end_rows["left"]
+    lines_p.append(pose[:2])
+    lines_d.append(d_left)
+    j_rho.append(np.zeros(n_in))
+    j_psi.append(psi_left)
+    r, a = modeller.z[0::2], pose[2] + modeller.z[1::2]
+    # d z_k / d (r_k, phi_k)
+    jp = np.array([[np.cos(a), -r * np.sin(a)], [np.sin(a), r * np.cos(a)]])  # (2, 2, n)
+    for j, (lo, hi) in enumerate(slices):
+        seg = pts[lo : hi + 1]
+        p0, psi = _principal_axis(seg)
+        d = np.array([np.cos(psi), np.sin(psi)])
+        nrm = np.array([-d[1], d[0]])
+        e = seg - p0
+        gap = np.hypot(*(np.array([e[:, 0] @ e[:, 0] - e[:, 1] @ e[:, 1], 2 * e[:, 0] @ e[:, 1]])))
+        g = (np.outer(e @ d, nrm) + np.outer(e @ nrm, d)) / gap  # (n_j, 2) d psi / d z_k
+        k = np.arange(lo, hi + 1)
+        # chain through polar: d/d(r, phi) = (d/dz) @ jp
+        rho_pol = np.einsum("i,ijk->kj", nrm / len(k), jp[:, :, k])
+        psi_pol = np.einsum("ki,ijk->kj", g, jp[:, :, k])
+        row_rho, row_psi = np.zeros(n_in), np.zeros(n_in)
+        row_rho[2 * lo : 2 * hi + 2] = rho_pol.reshape(-1)
+        row_psi[2 * lo : 2 * hi + 2] = psi_pol.reshape(-1)
+        if offset_var.size:
+            row_rho[2 * n + j] = 1.0
+        lines_p.append(p0)
+        lines_d.append(d)
+        j_rho.append(row_rho)
+        j_psi.append(row_psi)
+    d_right, psi_right = end_rows["right"]
+    lines_p.append(pose[:2])
+    lines_d.append(d_right)
+    j_rho.append(np.zeros(n_in))
+    j_psi.append(psi_right)
+
+    mu = np.empty((m + 1, 2))
+    jac = np.zeros((2 * (m + 1), n_in))
+    for i in range(m + 1):
+        pa, da, pb, db = lines_p[i], lines_d[i], lines_p[i + 1], lines_d[i + 1]
+        mat = np.array([[-da[1], da[0]], [-db[1], db[0]]])
+        c = np.array([mat[0] @ pa, mat[1] @ pb])
+        v = np.linalg.solve(mat, c)
+        inv = np.linalg.inv(mat)
+        mu[i] = v
+        jac[2 * i : 2 * i + 2] = np.outer(
+            inv[:, 0], j_rho[i] + (da @ (v - pa)) * j_psi[i]
+        ) + np.outer(inv[:, 1], j_rho[i + 1] + (db @ (v - pb)) * j_psi[i + 1])
+    var_in = np.concatenate([np.diag(modeller.cov), offset_var])
+    sigma = symmetrize((jac * var_in) @ jac.T)
+    return mu, sigma
 
 
 def coarseness_variances(
@@ -411,7 +641,7 @@ def coarseness_variances(
             dof.append(0)
             stat.append(0.0)
             continue
-        p0, psi = fit_line(pts)
+        p0, psi = _principal_axis(pts)
         normal = np.array([-np.sin(psi), np.cos(psi)])
         d2 = ((pts - p0) @ normal) ** 2
         var = np.einsum("i,nij,j->n", normal, point_cov[a : b + 1], normal)
@@ -471,28 +701,20 @@ def end_vertices(
         far = (scan.max_range, phi_edge + sign * outer * res)
         return [far, near] if sign > 0 else [near, far]
 
+    left, right = side(first, first - 1, 1.0), side(last, last + 1, -1.0)
+    zp = np.array(left + right, dtype=float)
+    mu, blocks = _polar_point_distribution(zp, pose, sensor, lin)
+    zero = zp[:, 0] == 0.0
+    if np.any(zero):
+        # A zero-range point spreads along its beam only (rank 1): add the floor.
+        blocks[zero] += config.zero_range_vertex_sigma**2 * np.eye(2)
     result = []
-    for zs in (side(first, first - 1, 1.0), side(last, last + 1, -1.0)):
-        zp = np.array(zs, dtype=float)
-        cov = np.broadcast_to(sensor.Q, (zp.shape[0], 2, 2))
-        zero = zp[:, 0] == 0.0
-        mu = _points(zp.reshape(-1), pose).reshape(-1, 2)
-        blocks = np.zeros((zp.shape[0], 2, 2))
-        if np.any(~zero):
-            _, blocks[~zero] = lin.propagate(
-                lambda x: _points(x, pose)[..., 0, :], zp[~zero], cov[~zero]
-            )
-        if np.any(zero):
-            # Analytic: only the range spreads a zero-range point, along the beam.
-            a = pose[2] + zp[zero, 1]
-            d = np.stack([np.cos(a), np.sin(a)], axis=-1)
-            blocks[zero] = sensor.sigma_range**2 * d[:, :, None] * d[
-                :, None, :
-            ] + config.zero_range_vertex_sigma**2 * np.eye(2)
-        big = np.zeros((2 * zp.shape[0], 2 * zp.shape[0]))
-        for i, blk in enumerate(blocks):
+    for sl in (slice(0, len(left)), slice(len(left), zp.shape[0])):
+        q = sl.stop - sl.start
+        big = np.zeros((2 * q, 2 * q))
+        for i, blk in enumerate(blocks[sl]):
             big[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = blk
-        result.append((mu, big))
+        result.append((mu[sl], big))
     return result[0], result[1]
 
 
@@ -566,7 +788,7 @@ def create_model(
 
     modeller = _SegmentModeller(scan, first, last, pose, sensor, config, lin)
     mu_c, cov_c = point_covariances(modeller.z, pose, sensor, lin)
-    modeller.point_cov = cov_c
+    modeller.use_point_covariances(cov_c)
     groups = initial_grouping(mu_c, cov_c, config)
     groups, bic = select_model(modeller, groups)
     groups, mu_obj, cov_obj = vertex_distribution(modeller, groups)
