@@ -1,0 +1,185 @@
+"""The state-space update of the vertex SLAM filter (SPEC section 10 item 3; thesis 4.3.3).
+
+The state is ``s = [x; r_0; ...; r_{L-1}]`` (lidar pose and one 2-D reference point per
+landmark) with a Gaussian belief in moment form. A landmark's vertices ``v`` hang off its
+reference through the conditional ``v = A_vr r + b_vr + n``, ``n ~ C(K_v, 0)``.
+
+Updating with one associated landmark multiplies three factors over ``[x; m; r; v]``
+(``m``: every other reference): ``Phi1`` the current belief, ``Phi2 = p(v | r)`` in the
+new vertex space (``A2 = F^T A_vr``, ``b2 = F^T b_vr``, ``K2 = F^T K_v F``) and
+``Phi3 = p(v | x, z)`` from the model update (``A3 = A_vx``, ``b3 = b_vx``,
+``K3 = K_obs``). The result is factorised again as ``p(x, m, r) p(v | r)``:
+
+- ``Phi5 = p(x, m, r)``: ``v`` marginalised out. ``Phi2 Phi3`` with ``v`` marginalised is
+  a factor ``C(Lambda, eta)`` on ``(x, r)`` only, so the belief is updated in moment form
+  by a rank-5 Woodbury correction, ``O((3 + 2L)^2)``, never inverting the full state.
+- ``Phi8 = p(v | r)`` (``K8``, ``A8``, ``b8``): from the local joint over ``(x, r, v)`` of
+  the prior marginal ``p(x, r)`` (``m`` marginalised) times ``Phi2 Phi3``, with ``x``
+  marginalised. This equals the thesis's closed forms (4.3.39-4.3.53, SPEC section 10).
+
+A new landmark's reference has no prior information (4.3.62): its factor ``C(Lambda, eta)``
+splits into a pose factor and ``p(r | x)``, which appends ``r`` to the state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from vslam_gym.slam.gaussian import Canonical, ensure_spd, symmetrize
+
+POSE_DIM = 3
+REF_DIM = 2
+
+
+@dataclass
+class LandmarkConditional:
+    """``p(v | r) = N(A r + b, K^-1)``: vertices [m] given the reference [m], world frame.
+
+    Attributes:
+        A: ``(2k, 2)``.
+        b: ``(2k,)``.
+        K: ``(2k, 2k)`` information matrix (positive definite).
+    """
+
+    A: np.ndarray  # noqa: N815
+    b: np.ndarray
+    K: np.ndarray  # noqa: N815
+
+    def mean(self, r: np.ndarray) -> np.ndarray:
+        """Vertex means ``(k, 2)`` for reference ``r``."""
+        return (self.A @ r + self.b).reshape(-1, 2)
+
+    def covariance(self) -> np.ndarray:
+        """``Sigma_v = K^-1`` ``(2k, 2k)``."""
+        return symmetrize(
+            scipy.linalg.cho_solve((np.linalg.cholesky(self.K), True), np.eye(self.K.shape[0]))
+        )
+
+
+def _linear_factor(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Canonical form over ``(y, v)`` of ``v = a y + b + n``, ``n ~ C(k, 0)``."""
+    ka = k @ a
+    big = np.block([[a.T @ ka, -ka.T], [-ka, k]])
+    h = np.concatenate([-ka.T @ b, k @ b])
+    return big, h
+
+
+def observation_factor(
+    a2: np.ndarray,
+    b2: np.ndarray,
+    k2: np.ndarray,
+    a3: np.ndarray,
+    b3: np.ndarray,
+    k3: np.ndarray,
+) -> Canonical:
+    """``Phi2 Phi3`` in canonical form over ``z = (x (3), r (2), v (2k))``."""
+    nv = b2.size
+    dim = POSE_DIM + REF_DIM + nv
+    kk, hh = np.zeros((dim, dim)), np.zeros(dim)
+    rv = np.r_[POSE_DIM : POSE_DIM + REF_DIM, POSE_DIM + REF_DIM : dim]
+    xv = np.r_[0:POSE_DIM, POSE_DIM + REF_DIM : dim]
+    for idx, (kf, hf) in ((rv, _linear_factor(a2, b2, k2)), (xv, _linear_factor(a3, b3, k3))):
+        kk[np.ix_(idx, idx)] += kf
+        hh[idx] += hf
+    return Canonical(kk, hh)
+
+
+def _conditional_v_given_r(local: Canonical) -> LandmarkConditional:
+    """``p(v | r)`` from a canonical form over ``(x, r, v)`` (``x`` marginalised)."""
+    dim = local.dim
+    keep = np.arange(POSE_DIM, dim)
+    m = local.marginalize(keep)
+    r, v = np.arange(REF_DIM), np.arange(REF_DIM, m.dim)
+    k8 = m.K[np.ix_(v, v)]
+    chol = (np.linalg.cholesky(k8), True)
+    a8 = -scipy.linalg.cho_solve(chol, m.K[np.ix_(v, r)])
+    b8 = scipy.linalg.cho_solve(chol, m.h[v])
+    return LandmarkConditional(A=a8, b=b8, K=symmetrize(k8))
+
+
+def _woodbury(
+    mu: np.ndarray, sigma: np.ndarray, idx: np.ndarray, lam: np.ndarray, eta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Belief times the factor ``C(lam, eta)`` on the variables ``idx`` (moment form).
+
+    ``Sigma' = Sigma - Sigma_:s lam (I + Sigma_ss lam)^-1 Sigma_s:`` and
+    ``mu' = mu + Sigma'_:s (eta - lam mu_s)``; ``lam`` may be singular.
+    """
+    s_cols = sigma[:, idx]
+    s_ss = sigma[np.ix_(idx, idx)]
+    gain = np.linalg.solve((np.eye(idx.size) + s_ss @ lam).T, (s_cols @ lam).T).T
+    sigma_new = symmetrize(sigma - gain @ s_cols.T)
+    mu_new = mu + sigma_new[:, idx] @ (eta - lam @ mu[idx])
+    return mu_new, sigma_new
+
+
+def state_space_update(
+    mu: np.ndarray,
+    sigma: np.ndarray,
+    ref: int | None,
+    a2: np.ndarray,
+    b2: np.ndarray,
+    k2: np.ndarray,
+    a3: np.ndarray,
+    b3: np.ndarray,
+    k3: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, LandmarkConditional]:
+    """Update the belief with one landmark's observation (SPEC section 10 item 3).
+
+    Args:
+        mu: ``(n,)`` state mean; the pose is ``mu[:3]``.
+        sigma: ``(n, n)`` state covariance.
+        ref: index of the landmark's reference ``r`` in the state, or ``None`` for a new
+            landmark (``r`` has no prior information and is appended to the state).
+        a2, b2, k2: ``Phi2 = p(v | r)`` in the new vertex space (``(2k, 2)``, ``(2k,)``,
+            ``(2k, 2k)``).
+        a3, b3, k3: ``Phi3 = p(v | x, z)`` (``(2k, 3)``, ``(2k,)``, ``(2k, 2k)``); ``k3``
+            may be singular (unobserved vertices carry no information).
+
+    Returns:
+        ``(mu', Sigma', p(v | r))``; the state grows by 2 for a new landmark.
+
+    Raises:
+        NotPositiveDefiniteError: ``k2 + k3`` or the result is not positive definite.
+    """
+    phi23 = observation_factor(a2, b2, k2, a3, b3, k3)
+    xr = np.arange(POSE_DIM + REF_DIM)
+    factor = phi23.marginalize(xr)  # v out: a factor on (x, r)
+    pose = np.arange(POSE_DIM)
+    if ref is None:
+        prior_k = np.zeros((POSE_DIM + REF_DIM,) * 2)
+        prior_h = np.zeros(POSE_DIM + REF_DIM)
+        prior_k[:3, :3] = np.linalg.inv(sigma[:3, :3])
+        prior_h[:3] = prior_k[:3, :3] @ mu[:3]
+    else:
+        s = np.r_[pose, ref : ref + REF_DIM]
+        prior = Canonical.from_moments(mu[s], sigma[np.ix_(s, s)])
+        prior_k, prior_h = prior.K, prior.h
+    local = phi23 + Canonical(prior_k, prior_h).extend(b2.size)
+    conditional = _conditional_v_given_r(local)
+
+    lam, eta = factor.K, factor.h
+    if ref is not None:
+        mu_new, sigma_new = _woodbury(mu, sigma, np.r_[pose, ref : ref + REF_DIM], lam, eta)
+    else:
+        lam_rr = lam[3:, 3:]
+        chol = (np.linalg.cholesky(lam_rr), True)
+        c_mat = -scipy.linalg.cho_solve(chol, lam[3:, :3])  # r | x = C x + c + e
+        c_vec = scipy.linalg.cho_solve(chol, eta[3:])
+        e_cov = scipy.linalg.cho_solve(chol, np.eye(REF_DIM))
+        lam_x = lam[:3, :3] + lam[:3, 3:] @ c_mat
+        eta_x = eta[:3] - lam[:3, 3:] @ c_vec
+        mu_x, sigma_x = _woodbury(mu, sigma, pose, symmetrize(lam_x), eta_x)
+        n = mu.size
+        mu_new = np.concatenate([mu_x, c_mat @ mu_x[:3] + c_vec])
+        sigma_new = np.zeros((n + REF_DIM, n + REF_DIM))
+        sigma_new[:n, :n] = sigma_x
+        cross = c_mat @ sigma_x[:3, :]
+        sigma_new[n:, :n] = cross
+        sigma_new[:n, n:] = cross.T
+        sigma_new[n:, n:] = c_mat @ sigma_x[:3, :3] @ c_mat.T + e_cov
+    sigma_new = ensure_spd(sigma_new, "state covariance after the landmark update")
+    return mu_new, sigma_new, conditional
