@@ -226,3 +226,20 @@ def test_degenerate_segments_raise():
         create_model(scan, first, first + 1, POSE, SENSOR)
     with pytest.raises(DegenerateSegmentError, match="no-return"):
         create_model(scan, first - 2, last, POSE, SENSOR)
+
+
+def test_short_line_at_grazing_angle_keeps_its_vertices():
+    """Regression: a 3-beam face seen at a grazing angle between two longer faces. The
+    exclusive-boundary split must not refit it through two points (which put a vertex
+    2.7 m off); its vertices agree with the thesis's shared-boundary fit."""
+    poly = np.array([(-1.5, 7), (-1.5, 5), (-0.5, 5), (-0.5, 6), (1.5, 6), (1.5, 7)], float)
+    c, s = np.cos(0.15), np.sin(0.15)
+    poly = (poly - [0, 6]) @ np.array([[c, -s], [s, c]]).T + [0, 6]
+    scan = noisy_scan(polygon_edges([poly]), np.random.default_rng(0))
+    fits = [
+        create_model(scan, 75, 103, POSE, SENSOR, ModelConfig(exclusive_boundaries=ex))
+        for ex in (True, False)
+    ]
+    assert [f.n_object_lines for f in fits] == [3, 3]
+    a, b = (f.model.mean[f.object_vertices[0] : f.object_vertices[1]] for f in fits)
+    np.testing.assert_allclose(a, b, atol=0.05)

@@ -443,9 +443,9 @@ def fit_slices(
     line and the vertex between them (by about 1 cm at 6 m with a 1 degree lidar). With
     ``exclusive`` each pair of adjacent lines is split at the beam ``k`` within
     ``window`` beams of the shared one that minimises the summed squared perpendicular
-    distances of the window's points to the two lines (each fitted without the window),
-    and the lines are fitted to ``..k`` and ``k + 1..`` only. Lines keep at least two
-    points.
+    distances of the window's points to the two lines (each fitted without the window,
+    to at least three points), and the lines are fitted to ``..k`` and ``k + 1..`` only.
+    Shorter lines keep the shared measurement.
     """
     slices = [list(g) for g in groups]
     if not exclusive:
@@ -453,8 +453,10 @@ def fit_slices(
     for j in range(len(groups) - 1):
         left, right = slices[j], slices[j + 1]
         shared = groups[j][1]
-        lo = max(shared - window, left[0] + 2)
-        hi = min(shared + window, right[1] - 2)
+        # Each side's reference line is fitted without the window and needs three points:
+        # a line through two noisy points at a grazing angle can be far off.
+        lo = max(shared - window, left[0] + 3)
+        hi = min(shared + window, right[1] - 3)
         if lo > hi:
             continue
         residual = []

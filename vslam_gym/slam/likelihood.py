@@ -46,6 +46,9 @@ _ERROR_INPUT_DIM = 6
 # Bisection for the mode of the line density: halving the bracket this many times takes
 # it from its initial width down to the float resolution of that width.
 _BISECTION_ITERATIONS = np.finfo(float).nmant + 1
+# The bisection stops once the mode is known to this many standard deviations of the
+# range error (d_GM^2 then changes by about its square, 1e-12).
+_MODE_TOLERANCE = 1e-6
 # Doublings of the bracket allowed before giving up (the mode of an exponentially
 # modified Gaussian lies within about sqrt(2 log(1 / (lam s))) s of 0, which stays
 # below 40 s for every representable lam s; 64 doublings is far beyond that).
@@ -537,7 +540,11 @@ def _density_mode(
         hi = np.where(up, 2.0 * hi, hi)
     else:
         raise RuntimeError("generalized_mahalanobis_sq: could not bracket the mode")
-    for _ in range(_BISECTION_ITERATIONS):
+    # Halve until the bracket is below _MODE_TOLERANCE standard deviations: d_GM^2 is
+    # flat at the mode, so an error of t sigma in the mode changes it by about t^2.
+    width = float(np.max((hi - lo) / (_MODE_TOLERANCE * np.sqrt(var))))
+    steps = min(_BISECTION_ITERATIONS, max(int(np.ceil(np.log2(max(width, 1.0)))), 0))
+    for _ in range(steps):
         mid = 0.5 * (lo + hi)
         up = rising(mid)
         lo = np.where(up, mid, lo)
@@ -560,7 +567,7 @@ def generalized_mahalanobis_sq(
     The mode is found by a vectorised bisection on the sign of ``dp/dx`` over
     ``[0, bracket_sigma s]``; while ``dp/dx`` is still positive at a beam's upper end,
     that bracket is doubled (and its lower end moved up). The bisection halves the
-    brackets a fixed number of times, down to float resolution; beams with ``u = 0``
+    brackets until they are below 1e-6 standard deviations; beams with ``u = 0``
     skip it (their mode is exactly 0). Like the thesis, this assumes the density has a
     single maximum, at ``x >= 0``: true for ``u = 0`` and ``u = 1`` (both densities are
     log-concave); for ``0 < u < 1`` a grid search over ``lam s`` in ``[1e-9, 0.1]`` and

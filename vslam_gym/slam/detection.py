@@ -1,0 +1,616 @@
+"""Detection: does a set of measurements come from this landmark model? (SPEC section 8).
+
+Thesis 3.2.50-3.2.61, read as in ``notes/update_algorithms.md`` section 3. At a given
+(estimated) lidar pose:
+
+1. every vertex of the model is seen in polar coordinates ``[range, bearing]`` from the
+   pose, its Gaussian propagated by the configured linearisation plus ``Q``
+   (3.2.51-3.2.53), one batched call over the vertices;
+2. the candidate lines of beam ``i`` are the front-facing lines whose bearing interval,
+   widened by ``detection_gate_sigma`` standard deviations of the end-vertex bearings,
+   contains ``phi_i`` (3.2.54); of those, the one under which the beam is most likely
+   (:func:`~vslam_gym.slam.likelihood.line_loglik`, the mixture 3.2.43) is chosen
+   (3.2.55). A beam without candidates goes to the first or the last line, whichever
+   side of the model it lies on, so that a set that extends beyond the model is rejected;
+3. per beam the squared generalised Mahalanobis distance ``d_GM^2`` of its range error
+   (3.2.56-3.2.59); the set is accepted when the mean of ``d_GM^2`` is at most
+   ``detection_mean_max`` and its population variance at most ``detection_var_max``
+   (3.2.60-3.2.61).
+
+Frames and units: vertices and the pose are in the world frame ([m], [m], [rad]); the
+pose is that of the lidar and is treated as known; bearings are relative to the lidar
+heading [rad], ranges in [m]. Lines are oriented: line ``j`` runs from vertex ``a`` to
+vertex ``b`` and its observed free side is on the right of ``a -> b`` (the vertices of
+every model are ordered left to right as seen when it was built). A line is
+*front-facing* from a position ``p`` when ``p`` is on that free side,
+``cross(v_a - p, v_b - p) < 0``; only front-facing lines can be candidates.
+
+Where the thesis is silent (notes section 3.2, register R-12):
+
+- bearings are compared relative to the beam and wrapped, and a line is a candidate only
+  if ``delta_a - delta_b < pi`` (it does not pass behind the lidar); the gate
+  half-widths are clamped to ``pi/2``;
+- a (beam, line) pair whose directions are within ``arcsin(parallel_sin_min)`` of each
+  other is not a candidate: the range error (3.2.15) divides by that sine;
+- a vertex within ``detection_gate_sigma`` standard deviations of the lidar has no
+  bearing (the artificial zero-range vertex seen from its own pose): its lines are
+  radial and are never candidates;
+- a beam without candidates on a closed polygon, or in a gap of a chain seen from
+  behind, takes the front-facing line with the nearest end in bearing.
+
+Everything is vectorised over beams and lines: one propagation over the vertices, one
+over all (beam, line) pairs that pass the gate, and dense ``(n, n_lines)`` arrays for the
+choice. With :class:`~vslam_gym.slam.gaussian.FirstOrderLinearization` both
+propagations are evaluated in closed form (same result as its generic path).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vslam_gym.slam.config import ModelConfig, SensorConfig
+from vslam_gym.slam.gaussian import (
+    FirstOrderLinearization,
+    Linearization,
+    make_linearization,
+)
+from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.landmark import LandmarkModel
+from vslam_gym.slam.likelihood import (
+    detection_statistics,
+    expected_range,
+    exponential_rate,
+    generalized_mahalanobis_sq,
+    line_loglik,
+    object_loglik,
+    range_error_distribution,
+    range_error_jacobian,
+)
+from vslam_gym.slam.scan import Scan
+
+__all__ = [
+    "BeamAssociation",
+    "Detection",
+    "VertexBearings",
+    "beam_line_correspondence",
+    "detect",
+    "vertex_polar_distribution",
+]
+
+_HALF_PI = 0.5 * np.pi
+
+
+@dataclass(frozen=True)
+class BeamAssociation:
+    """Beam-to-line correspondences of beams ``first..last`` of a scan (SPEC 8 items 1-3).
+
+    All arrays have one entry per beam, in scan order (left to right).
+
+    Attributes:
+        line: ``(n,)`` int, index of the model line each beam is assigned to.
+        gated: ``(n,)`` bool, True where the beam had at least one candidate line; False
+            where it was assigned to the first or last line (or the nearest one) because
+            none passed the gate.
+        mu_err: ``(n,)`` mean range error ``r_i - r_exp`` [m] against the assigned line
+            (positive: the return lies behind the line). ``nan`` where the beam is
+            (nearly) parallel to its assigned line, so that no range error exists.
+        var_err: ``(n,)`` its variance [m^2] (``nan`` where ``mu_err`` is).
+        loglik: ``(n,)`` log-likelihood of each beam under its line, the mixture of
+            thesis 3.2.43 [log 1/m] (``-inf`` where ``mu_err`` is ``nan``).
+        u: ``(n,)`` unknown probability of the assigned line.
+        d2: ``(n,)`` squared generalised Mahalanobis distance ``d_GM^2`` (``inf`` where
+            ``mu_err`` is ``nan``).
+    """
+
+    line: np.ndarray
+    gated: np.ndarray
+    mu_err: np.ndarray
+    var_err: np.ndarray
+    loglik: np.ndarray
+    u: np.ndarray
+    d2: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """Number of beams."""
+        return int(self.line.size)
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Outcome of the detection test of a set of beams against one model (SPEC 8 item 4).
+
+    Attributes:
+        accepted: True when ``mean_d2 <= detection_mean_max`` and
+            ``var_d2 <= detection_var_max``.
+        association: the per-beam correspondences and distances.
+        mean_d2: mean of ``d_GM^2`` over the beams (``inf`` if any beam has no range
+            error).
+        var_d2: its population variance (``ddof = 0``).
+        loglik: the set log-likelihood (thesis 3.2.21 with the unknown-line mixtures),
+            the sum of ``association.loglik`` [log 1/m^n]; for maximum-likelihood
+            correspondence between accepted models.
+    """
+
+    accepted: bool
+    association: BeamAssociation
+    mean_d2: float
+    var_d2: float
+    loglik: float
+
+
+@dataclass(frozen=True)
+class VertexBearings:
+    """Polar view of the model's vertices from a pose (thesis 3.2.51-3.2.53).
+
+    Attributes:
+        mean: ``(k, 2)`` means ``[range [m], bearing [rad]]``, bearing relative to the lidar
+            heading in ``[-pi, pi)``.
+        cov: ``(k, 2, 2)`` covariances of the vertex's polar coordinates plus ``Q``.
+        near: ``(k,)`` bool, vertices within ``detection_gate_sigma`` standard deviations
+            of the lidar position: their bearing is undefined (e.g. the artificial
+            zero-range vertex seen from the pose it was built at). Their ``mean`` holds
+            the range and the raw bearing and ``cov`` is ``Q`` only.
+    """
+
+    mean: np.ndarray
+    cov: np.ndarray
+    near: np.ndarray
+
+
+# ------------------------------------------------------------------------ validation
+
+
+def _check_pose(pose: object) -> np.ndarray:
+    try:
+        arr = np.array(pose, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"pose must be numeric [x, y, theta], got {pose!r}") from exc
+    if arr.shape != (3,):
+        raise ValueError(f"pose must have shape (3,) = [x, y, theta], got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"pose must be finite, got {arr}")
+    return arr
+
+
+def _check_index(name: str, value: object) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer beam index, got {value!r}")
+    return int(value)
+
+
+def _check_segment(scan: Scan, first: object, last: object) -> tuple[int, int]:
+    if not isinstance(scan, Scan):
+        raise ValueError(f"scan must be a Scan, got {type(scan).__name__}")
+    first = _check_index("first", first)
+    last = _check_index("last", last)
+    if not 0 <= first < scan.n:
+        raise ValueError(f"first = {first} is out of range for a scan of {scan.n} beams")
+    if not 0 <= last < scan.n:
+        raise ValueError(f"last = {last} is out of range for a scan of {scan.n} beams")
+    if last < first:
+        raise ValueError(f"segment beams must satisfy first <= last, got {first}..{last}")
+    returns = scan.returns[first : last + 1]
+    if not np.all(returns):
+        bad = first + np.flatnonzero(~returns)
+        raise ValueError(
+            f"segment {first}..{last} includes no-return (max-range) beams {bad[:5].tolist()}"
+        )
+    return first, last
+
+
+def _check_model(model: LandmarkModel) -> None:
+    if not isinstance(model, LandmarkModel):
+        raise ValueError(f"model must be a LandmarkModel, got {type(model).__name__}")
+    if model.n_lines < 1:
+        raise ValueError(f"model must have at least one line, got {model.n_vertices} vertices")
+    if not (np.all(np.isfinite(model.mean)) and np.all(np.isfinite(model.cov))):
+        raise ValueError("model mean and covariance must be finite")
+
+
+# -------------------------------------------------------------- vertex polar Gaussians
+
+
+def _polar_function(pose: np.ndarray, reference: np.ndarray):
+    """``v (k, m, 2) -> [range, bearing] (k, m, 2)``; bearings unwrapped around ``reference``.
+
+    ``reference`` ``(k, 1)`` is each vertex's mean bearing: sigma points straddling
+    ``+-pi`` stay next to each other instead of being averaged across the cut.
+    """
+
+    def f(points: np.ndarray) -> np.ndarray:
+        dx = points[..., 0] - pose[0]
+        dy = points[..., 1] - pose[1]
+        bearing = np.arctan2(dy, dx) - pose[2]
+        return np.stack([np.hypot(dx, dy), reference + wrap_angle(bearing - reference)], -1)
+
+    return f
+
+
+def _polar_jacobian(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """``(..., 2, 2)`` Jacobian of ``[range, bearing]`` w.r.t. the vertex, offsets ``dx, dy``."""
+    r2 = dx**2 + dy**2
+    r = np.sqrt(r2)
+    return np.stack([np.stack([dx / r, dy / r], -1), np.stack([-dy / r2, dx / r2], -1)], axis=-2)
+
+
+def vertex_polar_distribution(
+    model: LandmarkModel,
+    pose: np.ndarray,
+    sensor: SensorConfig,
+    config: ModelConfig,
+    linearization: Linearization,
+) -> VertexBearings:
+    """Range and bearing of every vertex seen from ``pose``, plus ``Q`` (3.2.51-3.2.53).
+
+    One batched propagation over the vertices (each vertex's own ``2 x 2`` block; the
+    cross-covariances between vertices are not needed here). A
+    :class:`~vslam_gym.slam.gaussian.FirstOrderLinearization` is evaluated in closed
+    form (``J Sigma J^T`` with the analytic polar Jacobian); any other linearisation
+    goes through its ``propagate``.
+
+    Args:
+        model: the landmark model (world frame).
+        pose: ``(3,)`` lidar pose ``[x, y, theta]`` (world frame).
+        sensor: gives ``Q``.
+        config: gives ``detection_gate_sigma`` (the ``near`` test).
+        linearization: how the Gaussians are propagated.
+
+    Returns:
+        The polar means and covariances, and which vertices are too close to the lidar
+        for a bearing.
+
+    Raises:
+        ValueError: a pose that is not 3 finite numbers, a model without lines or with
+            non-finite entries.
+    """
+    _check_model(model)
+    return _vertex_polar(model, _check_pose(pose), sensor, config, linearization)
+
+
+def _vertex_polar(
+    model: LandmarkModel,
+    pose: np.ndarray,
+    sensor: SensorConfig,
+    config: ModelConfig,
+    linearization: Linearization,
+) -> VertexBearings:
+    """:func:`vertex_polar_distribution` without the input checks (hot path)."""
+    k = model.n_vertices
+    mean = model.mean
+    diag = np.arange(k)
+    blocks = model.cov.reshape(k, 2, k, 2)[diag, :, diag, :]  # (k, 2, 2) per-vertex blocks
+    dx = mean[:, 0] - pose[0]
+    dy = mean[:, 1] - pose[1]
+    r = np.hypot(dx, dy)
+    raw_bearing = np.asarray(wrap_angle(np.arctan2(dy, dx) - pose[2]))
+    # Largest eigenvalue of each symmetric 2x2 block, in closed form.
+    sxx, syy, sxy = blocks[:, 0, 0], blocks[:, 1, 1], blocks[:, 0, 1]
+    lam_max = 0.5 * (sxx + syy) + np.hypot(0.5 * (sxx - syy), sxy)
+    near = r <= config.detection_gate_sigma * np.sqrt(np.maximum(lam_max, 0.0))
+
+    polar_mean = np.stack([r, raw_bearing], axis=1)
+    if isinstance(linearization, FirstOrderLinearization) and not np.any(near):
+        jac = _polar_jacobian(dx, dy)
+        polar_cov = jac @ blocks @ np.swapaxes(jac, -1, -2) + sensor.Q
+        return VertexBearings(mean=polar_mean, cov=polar_cov, near=near)
+    polar_cov = np.zeros((k, 2, 2))
+    far = np.flatnonzero(~near)
+    if far.size:
+        if isinstance(linearization, FirstOrderLinearization):
+            jac = _polar_jacobian(dx[far], dy[far])
+            polar_cov[far] = jac @ blocks[far] @ np.swapaxes(jac, -1, -2)
+        else:
+            f = _polar_function(pose, raw_bearing[far, None])
+            mu_p, cov_p = linearization.propagate(f, mean[far], blocks[far], check=False)
+            polar_mean[far, 0] = mu_p[:, 0]
+            polar_mean[far, 1] = wrap_angle(mu_p[:, 1])
+            polar_cov[far] = cov_p
+    polar_cov += sensor.Q
+    return VertexBearings(mean=polar_mean, cov=polar_cov, near=near)
+
+
+def _range_errors(
+    ranges: np.ndarray,
+    bearings: np.ndarray,
+    Q: np.ndarray,  # noqa: N803 - the thesis's name
+    pose: np.ndarray,
+    mu_vv: np.ndarray,
+    Sigma_vv: np.ndarray,  # noqa: N803 - the thesis's name
+    linearization: Linearization,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Range-error Gaussians of (beam, line) pairs (thesis 3.2.19).
+
+    :func:`~vslam_gym.slam.likelihood.range_error_distribution`; for a
+    :class:`~vslam_gym.slam.gaussian.FirstOrderLinearization` the same first-order
+    result in closed form, ``mu = r - r_exp`` and ``var = J blockdiag(Q, Sigma_vv) J^T``
+    with the analytic :func:`~vslam_gym.slam.likelihood.range_error_jacobian` (the
+    inputs were validated by the caller, and ``var >= sigma_r^2 > 0``).
+    """
+    if not isinstance(linearization, FirstOrderLinearization):
+        return range_error_distribution(ranges, bearings, Q, pose, mu_vv, Sigma_vv, linearization)
+    inputs = np.concatenate([ranges[:, None], bearings[:, None], mu_vv], axis=1)
+    jac = range_error_jacobian(inputs, pose)[:, 0, :]
+    j_z, j_v = jac[:, :2], jac[:, 2:]
+    var = np.sum((j_z @ Q) * j_z, axis=1) + (j_v[:, None, :] @ Sigma_vv @ j_v[:, :, None])[:, 0, 0]
+    mu = ranges - expected_range(bearings, mu_vv[:, :2], mu_vv[:, 2:], pose)
+    return mu, var
+
+
+# --------------------------------------------------------------------- correspondence
+
+
+def _line_bearings(
+    vb: VertexBearings, lines: np.ndarray, gate: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per line: bearings of its two ends and their gate half-widths (clamped to pi/2).
+
+    A near vertex (no bearing) takes the bearing of the line's other vertex: seen from
+    the pose, the line is radial and covers no bearing interval of its own.
+    """
+    bearing = vb.mean[:, 1]
+    margin = np.minimum(gate * np.sqrt(vb.cov[:, 1, 1]), _HALF_PI)
+    a, b = lines[:, 0], lines[:, 1]
+    near_a, near_b = vb.near[a], vb.near[b]
+    phi_a = np.where(near_a, bearing[b], bearing[a])
+    phi_b = np.where(near_b, bearing[a], bearing[b])
+    m_a = np.where(near_a, margin[b], margin[a])
+    m_b = np.where(near_b, margin[a], margin[b])
+    return phi_a, phi_b, m_a, m_b
+
+
+def _fallback_lines(
+    delta_a: np.ndarray, delta_b: np.ndarray, front: np.ndarray, closed: bool
+) -> np.ndarray:
+    """Line for each beam that has no candidate (thesis T:2363-2366, notes 3.2).
+
+    Open chain: a beam left of the first vertex goes to the first line, a beam right of
+    the last vertex to the last line. Otherwise (closed polygon, or a beam in a gap of
+    a chain seen from behind), the line with the nearest end in bearing, among the
+    front-facing lines if there are any.
+    """
+    n_lines = delta_a.shape[1]
+    distance = np.minimum(np.abs(delta_a), np.abs(delta_b))
+    if np.any(front):
+        distance = np.where(front[None, :], distance, np.inf)
+    chosen = np.argmin(distance, axis=1)
+    if not closed:
+        left = delta_a[:, 0] < 0.0  # the beam's bearing exceeds that of the first vertex
+        right = delta_b[:, -1] > 0.0  # ... is below that of the last vertex
+        chosen = np.where(right, n_lines - 1, chosen)
+        chosen = np.where(left, 0, chosen)
+    return chosen
+
+
+def _line_loglik(mu: np.ndarray, var: np.ndarray, u: np.ndarray, lam: float) -> np.ndarray:
+    """:func:`~vslam_gym.slam.likelihood.line_loglik` of (beam, line) pairs.
+
+    Evaluated as :func:`~vslam_gym.slam.likelihood.object_loglik` where ``u = 0``
+    (identical there, without the unknown-line density the mixture would evaluate and
+    discard).
+    """
+    out = np.empty_like(mu)
+    obj = u == 0.0
+    if np.any(obj):
+        out[obj] = object_loglik(mu[obj], var[obj])
+    if not np.all(obj):
+        out[~obj] = line_loglik(mu[~obj], var[~obj], u[~obj], lam)
+    return out
+
+
+def _generalized_mahalanobis_sq(
+    mu: np.ndarray, var: np.ndarray, u: np.ndarray, lam: float, bracket_sigma: float
+) -> np.ndarray:
+    """:func:`~vslam_gym.slam.likelihood.generalized_mahalanobis_sq` per beam.
+
+    ``inf`` where the beam has no range error (``mu`` is ``nan``); ``mu^2 / var`` where
+    ``u = 0``, which is what the library returns there (the mode is 0 exactly), without
+    its per-call overhead; the library's mode search for the others.
+    """
+    d2 = np.full(mu.shape, np.inf)
+    ok = np.isfinite(mu)
+    obj = ok & (u == 0.0)
+    d2[obj] = mu[obj] ** 2 / var[obj]
+    mixed = ok & ~obj
+    if np.any(mixed):
+        d2[mixed] = generalized_mahalanobis_sq(mu[mixed], var[mixed], u[mixed], lam, bracket_sigma)
+    return d2
+
+
+def beam_line_correspondence(
+    model: LandmarkModel,
+    scan: Scan,
+    first: int,
+    last: int,
+    pose: np.ndarray,
+    sensor: SensorConfig,
+    config: ModelConfig,
+    linearization: Linearization,
+    lam: float,
+) -> BeamAssociation:
+    """Assign each beam of ``first..last`` to a model line and score it (SPEC 8 items 1-3).
+
+    Candidates of beam ``i`` are the front-facing lines ``(a, b)`` with (bearings
+    relative to the beam, wrapped) ``delta_b <= g s_b``, ``delta_a >= -g s_a`` and
+    ``delta_a - delta_b < pi`` (the last rejects segments passing behind the lidar),
+    ``g = config.detection_gate_sigma``, ``s`` the vertex bearing standard deviations
+    (3.2.52, clamped so that ``g s <= pi/2``), and whose direction is not within
+    ``arcsin(config.parallel_sin_min)`` of the beam's (no range error exists on a line
+    parallel to the beam). Lines with a vertex at the lidar position (radial lines) are
+    never candidates. Among the candidates the beam takes the line of highest
+    :func:`~vslam_gym.slam.likelihood.line_loglik`; a beam without candidates takes the
+    first line if it lies left of the model, the last if right of it, else (closed
+    polygon, or a chain seen from behind) the line with the nearest end in bearing.
+
+    Args:
+        model: the landmark model (world frame); at least one line.
+        scan: the scan holding the beams (lidar frame).
+        first: scan index of the set's first (leftmost) beam.
+        last: scan index of its last (rightmost) beam, inclusive; every beam of
+            ``first..last`` must have a return.
+        pose: ``(3,)`` lidar pose ``[x, y, theta]`` (world frame) at which to test.
+        sensor: sensor parameters (``Q``).
+        config: gives ``detection_gate_sigma``, ``parallel_sin_min`` and
+            ``gm_mode_bracket_sigma``.
+        linearization: how Gaussians are propagated (vertex bearings and range errors).
+        lam: rate [1/m] of the unknown-line range density, > 0 (usually
+            :func:`~vslam_gym.slam.likelihood.exponential_rate` of the scan).
+
+    Returns:
+        The per-beam association (see :class:`BeamAssociation`).
+
+    Raises:
+        ValueError: segment indices out of range or not integers, no-return beams in the
+            segment, a pose that is not 3 finite numbers, a model without lines or with
+            non-finite entries, a non-positive ``lam``.
+    """
+    _check_model(model)
+    first, last = _check_segment(scan, first, last)
+    pose = _check_pose(pose)
+    lam = float(lam)
+    if not (np.isfinite(lam) and lam > 0.0):
+        raise ValueError(f"lam must be finite and > 0, got {lam!r}")
+
+    ranges = scan.ranges[first : last + 1]
+    bearings = scan.bearings[first : last + 1]
+    n = ranges.size
+    lines = model.line_vertices()
+    n_lines = lines.shape[0]
+    gate = config.detection_gate_sigma
+
+    # 1. Vertex bearings and each line's widened bearing interval.
+    vb = _vertex_polar(model, pose, sensor, config, linearization)
+    phi_a, phi_b, m_a, m_b = _line_bearings(vb, lines, gate)
+    va = model.mean[lines[:, 0]]
+    vbm = model.mean[lines[:, 1]]
+    rel_a = va - pose[:2]
+    rel_b = vbm - pose[:2]
+    front = (rel_a[:, 0] * rel_b[:, 1] - rel_a[:, 1] * rel_b[:, 0]) < 0.0
+    radial = vb.near[lines[:, 0]] | vb.near[lines[:, 1]]
+
+    # 2. Gate, per (beam, line).
+    delta_a = np.asarray(wrap_angle(phi_a[None, :] - bearings[:, None]))
+    delta_b = np.asarray(wrap_angle(phi_b[None, :] - bearings[:, None]))
+    angle = pose[2] + bearings
+    dv = va - vbm
+    length = np.hypot(dv[:, 0], dv[:, 1])
+    sin_beam_line = (
+        np.cos(angle)[:, None] * dv[None, :, 1] - np.sin(angle)[:, None] * dv[None, :, 0]
+    )
+    not_parallel = np.abs(sin_beam_line) > config.parallel_sin_min * length[None, :]
+    candidate = (
+        (front & ~radial)[None, :]
+        & (delta_b <= m_b[None, :])
+        & (delta_a >= -m_a[None, :])
+        & (delta_a - delta_b < np.pi)
+        & not_parallel
+    )
+    gated = np.any(candidate, axis=1)
+
+    # Beams without candidates: one fallback pair each (scored only if not parallel).
+    evaluate = candidate.copy()
+    fallback = np.flatnonzero(~gated)
+    if fallback.size:
+        fb_line = _fallback_lines(
+            delta_a[fallback], delta_b[fallback], front & ~radial, model.closed
+        )
+        evaluate[fallback, fb_line] = not_parallel[fallback, fb_line]
+
+    # 3. Range errors of every evaluated pair in one batched propagation.
+    beam_idx, line_idx = np.nonzero(evaluate)
+    mu_err = np.full((n, n_lines), np.nan)
+    var_err = np.full((n, n_lines), np.nan)
+    loglik = np.full((n, n_lines), -np.inf)
+    if beam_idx.size:
+        mu_vv, sigma_vv = model.line_blocks()
+        mu_p, var_p = _range_errors(
+            ranges[beam_idx],
+            bearings[beam_idx],
+            sensor.Q,
+            pose,
+            mu_vv[line_idx],
+            sigma_vv[line_idx],
+            linearization,
+        )
+        mu_err[beam_idx, line_idx] = mu_p
+        var_err[beam_idx, line_idx] = var_p
+        loglik[beam_idx, line_idx] = _line_loglik(mu_p, var_p, model.u[line_idx], lam)
+
+    # 4. Choice: the most likely candidate, else the fallback line.
+    line = np.argmax(np.where(candidate, loglik, -np.inf), axis=1)
+    if fallback.size:
+        line[fallback] = fb_line
+    rows = np.arange(n)
+    chosen_mu = mu_err[rows, line]
+    chosen_var = var_err[rows, line]
+    chosen_ll = loglik[rows, line]
+    u = model.u[line].copy()
+    d2 = _generalized_mahalanobis_sq(chosen_mu, chosen_var, u, lam, config.gm_mode_bracket_sigma)
+    return BeamAssociation(
+        line=line,
+        gated=gated,
+        mu_err=chosen_mu,
+        var_err=chosen_var,
+        loglik=chosen_ll,
+        u=u,
+        d2=d2,
+    )
+
+
+# ----------------------------------------------------------------------------- test
+
+
+def detect(
+    model: LandmarkModel,
+    scan: Scan,
+    first: int,
+    last: int,
+    pose: np.ndarray,
+    sensor: SensorConfig,
+    config: ModelConfig,
+    linearization: Linearization | None = None,
+    lam: float | None = None,
+) -> Detection:
+    """Test whether beams ``first..last`` of ``scan`` come from ``model`` (SPEC section 8).
+
+    Runs :func:`beam_line_correspondence` and accepts when the mean of ``d_GM^2`` over
+    the beams is at most ``config.detection_mean_max`` and its population variance at
+    most ``config.detection_var_max`` (thesis 3.2.60-3.2.61).
+
+    Args:
+        model: the landmark model (world frame).
+        scan: the scan (lidar frame).
+        first: scan index of the set's first (leftmost) beam.
+        last: scan index of its last beam, inclusive.
+        pose: ``(3,)`` lidar pose ``[x, y, theta]`` (world frame), e.g. after ICP.
+        sensor: sensor parameters.
+        config: model parameters (gate, thresholds).
+        linearization: defaults to ``make_linearization(config)``.
+        lam: unknown-line rate [1/m]; defaults to
+            ``exponential_rate(scan.ranges, scan.max_range)`` over the whole scan.
+
+    Returns:
+        The decision with its statistics, the per-beam association and the set
+        log-likelihood.
+
+    Raises:
+        ValueError: as :func:`beam_line_correspondence`.
+    """
+    lin = make_linearization(config) if linearization is None else linearization
+    if lam is None:
+        if not isinstance(scan, Scan):
+            raise ValueError(f"scan must be a Scan, got {type(scan).__name__}")
+        lam = exponential_rate(scan.ranges, scan.max_range)
+    assoc = beam_line_correspondence(model, scan, first, last, pose, sensor, config, lin, lam)
+    mean_d2, var_d2 = detection_statistics(assoc.d2)
+    # The rule of likelihood.detection_accepts, on the statistics already computed.
+    accepted = bool(mean_d2 <= config.detection_mean_max and var_d2 <= config.detection_var_max)
+    return Detection(
+        accepted=accepted,
+        association=assoc,
+        mean_d2=mean_d2,
+        var_d2=var_d2,
+        loglik=float(np.sum(assoc.loglik)),
+    )
