@@ -58,6 +58,50 @@ class LandmarkConditional:
             scipy.linalg.cho_solve((np.linalg.cholesky(self.K), True), np.eye(self.K.shape[0]))
         )
 
+    def select(
+        self, source: np.ndarray, means: np.ndarray, covs: np.ndarray, r: np.ndarray
+    ) -> LandmarkConditional:
+        """The conditional over a new vertex set (unknown-line update, Algorithm 7).
+
+        Vertex ``i`` is old vertex ``source[i]`` (the others are marginalised out) or,
+        where ``source[i] == -1``, a new vertex independent of all others, with mean
+        ``means[i]`` [m] and covariance ``covs[i]`` ``(2, 2)``, rigidly attached to the
+        reference (``A = I``, ``b = mean - r``).
+        """
+        source = np.asarray(source, dtype=int)
+        cov = self.covariance()
+        k = source.size
+        a = np.zeros((2 * k, REF_DIM))
+        b = np.zeros(2 * k)
+        big = np.zeros((2 * k, 2 * k))
+        old = np.flatnonzero(source >= 0)
+        if old.size:
+            rows_new = np.stack([2 * old, 2 * old + 1], axis=1).reshape(-1)
+            rows_old = np.stack([2 * source[old], 2 * source[old] + 1], axis=1).reshape(-1)
+            a[rows_new] = self.A[rows_old]
+            b[rows_new] = self.b[rows_old]
+            big[np.ix_(rows_new, rows_new)] = cov[np.ix_(rows_old, rows_old)]
+        for i in np.flatnonzero(source < 0):
+            sl = slice(2 * i, 2 * i + 2)
+            a[sl] = np.eye(2)
+            b[sl] = means[i] - r
+            big[sl, sl] = covs[i]
+        return LandmarkConditional(A=a, b=b, K=symmetrize(np.linalg.inv(symmetrize(big))))
+
+    def fold(self, keep: np.ndarray, subst: np.ndarray) -> LandmarkConditional:
+        """The conditional after wrapping (3.2.95).
+
+        Keeps the vertices ``keep`` (marginalising the others), then substitutes
+        ``v_keep = subst v_new`` in canonical form: ``K' = S^T K_keep S`` and mean
+        ``K'^-1 S^T K_keep (A_keep r + b_keep)``.
+        """
+        keep = np.asarray(keep, dtype=int)
+        rows = np.stack([2 * keep, 2 * keep + 1], axis=1).reshape(-1)
+        k_keep = symmetrize(np.linalg.inv(self.covariance()[np.ix_(rows, rows)]))
+        k_new = symmetrize(subst.T @ k_keep @ subst)
+        proj = np.linalg.solve(k_new, subst.T @ k_keep)
+        return LandmarkConditional(A=proj @ self.A[rows], b=proj @ self.b[rows], K=k_new)
+
 
 def _linear_factor(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Canonical form over ``(y, v)`` of ``v = a y + b + n``, ``n ~ C(k, 0)``."""
@@ -85,6 +129,55 @@ def observation_factor(
         kk[np.ix_(idx, idx)] += kf
         hh[idx] += hf
     return Canonical(kk, hh)
+
+
+def augment_landmark(
+    mu: np.ndarray,
+    sigma: np.ndarray,
+    a3: np.ndarray,
+    b3: np.ndarray,
+    cov3: np.ndarray,
+    select: np.ndarray,
+    shape_sigma: float,
+) -> tuple[np.ndarray, np.ndarray, LandmarkConditional]:
+    """Add a new landmark by augmentation: no information about the pose is created.
+
+    The vertices seen from the pose, ``v = A3 x + b3 + n``, ``n ~ N(0, cov3)``, define the
+    reference ``r = S v`` (``S = select``, e.g. the mean of the object vertices). The
+    state gains ``r`` with its exact moments (``r`` correlates with the pose and, through
+    it, with the map), and the landmark keeps ``p(v | r)`` with ``x`` and ``m``
+    marginalised. That conditional is singular along ``S v = r`` (an identity, not a
+    measurement); ``shape_sigma`` [m] of isotropic spread is added to hold it in
+    information form.
+
+    The thesis instead multiplies ``Phi2`` (``A_vr = [I; ...; I]``, ``K2 = Sigma_v^-1``)
+    with ``Phi3`` (``K3 = Sigma_v^-1``) in :func:`state_space_update`, which uses the same
+    scan twice and gives the pose heading information it does not have.
+
+    Returns:
+        ``(mu', Sigma', p(v | r))`` with ``r`` appended to the state.
+    """
+    n = mu.size
+    s_xx = sigma[:3, :3]
+    sigma_vx_all = a3 @ sigma[:3, :]  # cov(v, state)
+    sigma_vv = a3 @ s_xx @ a3.T + cov3
+    mu_v = a3 @ mu[:3] + b3
+    mu_r = select @ mu_v
+    cross = select @ sigma_vx_all  # cov(r, state)
+    s_rr = select @ sigma_vv @ select.T
+    mu_new = np.concatenate([mu, mu_r])
+    sigma_new = np.zeros((n + REF_DIM, n + REF_DIM))
+    sigma_new[:n, :n] = sigma
+    sigma_new[n:, :n] = cross
+    sigma_new[:n, n:] = cross.T
+    sigma_new[n:, n:] = s_rr
+    s_vr = sigma_vv @ select.T
+    gain = np.linalg.solve(s_rr, s_vr.T).T
+    cond_cov = symmetrize(sigma_vv - gain @ s_vr.T) + shape_sigma**2 * np.eye(b3.size)
+    k = symmetrize(np.linalg.inv(cond_cov))
+    conditional = LandmarkConditional(A=gain, b=mu_v - gain @ mu_r, K=k)
+    sigma_new = ensure_spd(sigma_new, "state covariance after adding a landmark")
+    return mu_new, sigma_new, conditional
 
 
 def _conditional_v_given_r(local: Canonical) -> LandmarkConditional:

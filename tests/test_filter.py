@@ -1,0 +1,107 @@
+"""The SLAM filter (SPEC section 10) on a synthetic loop around four objects."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _raycast import bearings_deg, cast, polygon_edges
+
+from vslam_gym.config_utils import UnknownKeyError
+from vslam_gym.slam.config import SensorConfig
+from vslam_gym.slam.filter import SlamConfig, VertexSLAM
+from vslam_gym.slam.motion import increments_between, predict_pose
+from vslam_gym.slam.scan import ScanError
+
+SENSOR = SensorConfig()
+PHI = bearings_deg()
+OBJECTS = [
+    np.array([(3, 3), (5, 3), (5, 4), (3, 4)], float),
+    np.array([(8, -1), (9, -1), (9, 1.5), (8, 1.5)], float),
+    np.array([(3, -5), (6, -5), (6, -4), (4, -4), (4, -3), (3, -3)], float),
+    np.array([(-2, -3), (-1, -3), (-1, -1), (-2, -1)], float),
+]
+EDGES = polygon_edges(OBJECTS)
+ALPHAS = (0.01, 0.005, 0.005, 0.001)
+
+
+def circle_route(n=120):
+    t = np.linspace(0, 2 * np.pi, n)
+    return np.column_stack([3.5 + 3.0 * np.sin(t), -3.0 * np.cos(t), t])
+
+
+def run(config, seed=0, steps=None):
+    rng = np.random.default_rng(seed)
+    true = circle_route()
+    slam = VertexSLAM(SENSOR, config, initial_pose=true[0])
+    odo = true[0].copy()
+    beliefs, odo_err = [], []
+    for k in range(1, len(true) if steps is None else steps):
+        u = increments_between(true[k - 1], true[k])
+        a1, a2, a3, a4 = ALPHAS
+        var = [
+            a1 * u[0] ** 2 + a2 * u[1] ** 2,
+            a3 * u[1] ** 2 + a4 * (u[0] ** 2 + u[2] ** 2),
+            a1 * u[2] ** 2 + a2 * u[1] ** 2,
+        ]
+        noisy = u + rng.normal(0.0, np.sqrt(var))
+        odo = predict_pose(odo, noisy)
+        r = cast(
+            true[k], EDGES, PHI, SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng
+        )
+        beliefs.append(slam.step(noisy, r, PHI))
+        odo_err.append(np.hypot(*(odo[:2] - true[k, :2])))
+    return slam, beliefs, np.array(odo_err), true
+
+
+def test_loop_closes_and_revisited_object_is_associated():
+    slam, beliefs, odo_err, true = run(SlamConfig())
+    final = beliefs[-1]
+    err = np.hypot(*(final.pose[:2] - true[-1, :2]))
+    assert err < 0.15 and err < 0.2 * odo_err[-1], (err, odo_err[-1])
+    # every object is modelled, with few duplicates
+    assert 4 <= len(final.landmarks) <= 8
+    # after most of the circle the first landmark is seen and updated again
+    late = [d for b in beliefs[90:] for d in b.decisions if d.outcome == "updated"]
+    assert any(d.landmark == 0 for d in late)
+    # the state covariance stays symmetric positive definite
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+    np.testing.assert_array_equal(slam._sigma, slam._sigma.T)
+
+
+@pytest.mark.parametrize(
+    "odometry, ranges, match",
+    [
+        ([0.0, np.nan, 0.0], np.ones(181), "finite"),
+        ([0.0, 0.1], np.ones(181), "shape"),
+        ([0.0, 0.1, 0.0], np.r_[np.ones(180), np.nan], "NaN"),
+        ([0.0, 0.1, 0.0], np.ones(180), "bearings has 181"),
+        ([0.0, 0.1, 0.0], -np.ones(181), ">= 0"),
+    ],
+)
+def test_rejected_input_leaves_the_belief_unchanged(odometry, ranges, match):
+    slam, _, _, _ = run(SlamConfig(), steps=15)
+    before = slam.belief
+    sigma = slam._sigma.copy()
+    with pytest.raises(ValueError, match=match):
+        slam.step(odometry, ranges, PHI if ranges.size == 181 else PHI)
+    after = slam.belief
+    assert after.step == before.step
+    np.testing.assert_array_equal(after.pose, before.pose)
+    np.testing.assert_array_equal(slam._sigma, sigma)
+    assert len(after.landmarks) == len(before.landmarks)
+
+
+def test_scan_error_type():
+    slam = VertexSLAM(SENSOR)
+    with pytest.raises(ScanError):
+        slam.step([0, 0, 0], np.ones(181), PHI[::-1])
+
+
+def test_config_from_dict_and_presets():
+    cfg = SlamConfig.from_dict({"preset": "thesis", "filter": {"min_set_beams": 6}})
+    assert cfg.filter.min_set_beams == 6 and cfg.model.linearization == "ut"
+    assert cfg.filter.new_landmark == "thesis"
+    with pytest.raises(UnknownKeyError, match="did you mean 'min_set_beams'"):
+        SlamConfig.from_dict({"filter": {"min_set_beam": 6}})
+    with pytest.raises(UnknownKeyError, match="preset"):
+        SlamConfig.preset("thesys")
