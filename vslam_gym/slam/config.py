@@ -258,6 +258,11 @@ class FilterConfig:
             reference, no pose information; see ``state_update.augment_landmark``).
         shape_sigma: with ``"augment"``, isotropic spread [m] added to the singular
             ``p(v | r)`` so that it has an information form.
+        unknown_chain_max_vertices: each unknown chain keeps at most this many vertices
+            after Douglas-Peucker simplification at ``unknown_chain_tolerance`` [m]
+            (``landmark.prune_unknown_chains``); 0 keeps every vertex (the thesis,
+            whose chains grow with every update).
+        unknown_chain_tolerance: see ``unknown_chain_max_vertices``.
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -273,6 +278,8 @@ class FilterConfig:
     icp_max_pose_mahalanobis: float = float("inf")
     new_landmark: str = "augment"
     shape_sigma: float = 1e-3
+    unknown_chain_max_vertices: int = 4
+    unknown_chain_tolerance: float = 0.3
 
     def __post_init__(self) -> None:
         if self.new_landmark not in ("thesis", "augment"):
@@ -284,7 +291,7 @@ class FilterConfig:
     @classmethod
     def thesis(cls, **overrides: Any) -> FilterConfig:
         """The thesis's filter: new landmarks through the state-space update."""
-        base: dict[str, Any] = dict(new_landmark="thesis")
+        base: dict[str, Any] = dict(new_landmark="thesis", unknown_chain_max_vertices=0)
         base.update(overrides)
         return dataclass_from_dict(cls, base)
 

@@ -41,7 +41,7 @@ from vslam_gym.slam.detection import detect
 from vslam_gym.slam.gaussian import make_linearization, symmetrize
 from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.icp import IcpConfig, align, candidate_landmarks, object_radius
-from vslam_gym.slam.landmark import LandmarkModel
+from vslam_gym.slam.landmark import LandmarkModel, prune_unknown_chains
 from vslam_gym.slam.likelihood import exponential_rate
 from vslam_gym.slam.motion import (
     check_increments,
@@ -487,8 +487,26 @@ class VertexSLAM:
                     post, upd.chains, scan, self._mu[:3], self.sensor, self.config.model, self._lin
                 )
                 covs = np.array([ul.model.vertex_cov(i) for i in range(ul.model.n_vertices)])
-                cond = lm.cond.select(ul.source, ul.model.mean, covs, r)
-                lm.cond, lm.u, lm.object_vertices = cond, ul.model.u.copy(), ul.object_vertices
+                source, u, span = ul.source, ul.model.u.copy(), ul.object_vertices
+                cfg = self.config.filter
+                if cfg.unknown_chain_max_vertices > 0:
+                    keep = prune_unknown_chains(
+                        ul.model, span, cfg.unknown_chain_tolerance, cfg.unknown_chain_max_vertices
+                    )
+                    if keep.size < source.size:
+                        u = _pruned_u(u, keep, span, self.config.model.unknown_threshold)
+                        span = (
+                            int(np.searchsorted(keep, span[0])),
+                            int(np.searchsorted(keep, span[1] - 1)) + 1,
+                        )
+                        source, covs = source[keep], covs[keep]
+                        means = ul.model.mean[keep]
+                    else:
+                        means = ul.model.mean
+                else:
+                    means = ul.model.mean
+                cond = lm.cond.select(source, means, covs, r)
+                lm.cond, lm.u, lm.object_vertices = cond, u, span
             if not lm.closed:
                 model = LandmarkModel(lm.cond.mean(r), lm.cond.covariance(), lm.u, lm.closed)
                 w = wrap_model(model, lm.object_vertices, self.config.model)
@@ -558,6 +576,21 @@ class VertexSLAM:
         for lm in self._landmarks:
             lm.model = self._model_of(lm)
             lm.radius = object_radius(lm.model, self._mu[lm.ref : lm.ref + REF_DIM], thr)
+
+
+def _pruned_u(
+    u: np.ndarray, keep: np.ndarray, span: tuple[int, int], threshold: float
+) -> np.ndarray:
+    """Unknown probabilities of the lines between consecutive kept vertices.
+
+    Object lines (between kept object vertices) keep their ``u``; a line that replaces
+    part of an unknown chain is unknown (the largest ``u`` it spans).
+    """
+    out = []
+    for a, b in zip(keep[:-1], keep[1:], strict=True):
+        out.append(u[a] if b == a + 1 else max(float(u[a:b].max()), threshold + 1e-9))
+    del span
+    return np.array(out, dtype=float)
 
 
 def _object_span(u: np.ndarray, threshold: float) -> tuple[int, int]:

@@ -144,3 +144,45 @@ class ModelFit:
     def n_object_lines(self) -> int:
         """Number of fitted object lines ``m``."""
         return int(self.groups.shape[0])
+
+
+def prune_unknown_chains(
+    model: LandmarkModel, object_vertices: tuple[int, int], tolerance: float, max_vertices: int
+) -> np.ndarray:
+    """Vertices to keep when the unknown chains at the ends grow long.
+
+    Every update merges the unknown chain seen from the new pose into the old one
+    (Algorithm 7), so the chains only grow. Per side, the chain from its outer end to the
+    first (last) object vertex is simplified with Douglas-Peucker at ``tolerance`` [m]
+    and then cut to its ``max_vertices`` vertices nearest the object. Object vertices
+    are always kept; a closed model is returned whole.
+
+    Returns:
+        Ascending indices of the vertices to keep.
+    """
+    k = model.n_vertices
+    start, stop = object_vertices
+    if model.closed or k == 0:
+        return np.arange(k)
+
+    def simplify(idx: np.ndarray) -> list[int]:
+        """Douglas-Peucker over model.mean[idx] (first and last always kept)."""
+        if idx.size <= 2:
+            return list(idx)
+        pts = model.mean[idx]
+        a, b = pts[0], pts[-1]
+        ab = b - a
+        norm = np.hypot(*ab)
+        rel = pts - a
+        if norm > 0:
+            dist = np.abs(rel[:, 0] * ab[1] - rel[:, 1] * ab[0]) / norm
+        else:
+            dist = np.hypot(rel[:, 0], rel[:, 1])
+        i = int(np.argmax(dist))
+        if dist[i] <= tolerance:
+            return [int(idx[0]), int(idx[-1])]
+        return simplify(idx[: i + 1])[:-1] + simplify(idx[i:])
+
+    left = simplify(np.arange(0, start + 1))[:-1][-max_vertices:] if start > 0 else []
+    right = simplify(np.arange(stop - 1, k))[1:][:max_vertices] if stop < k else []
+    return np.array(sorted(set(left) | set(range(start, stop)) | set(right)), dtype=int)

@@ -23,7 +23,7 @@ splits into a pose factor and ``p(r | x)``, which appends ``r`` to the state.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
@@ -47,16 +47,19 @@ class LandmarkConditional:
     A: np.ndarray  # noqa: N815
     b: np.ndarray
     K: np.ndarray  # noqa: N815
+    _cov: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def mean(self, r: np.ndarray) -> np.ndarray:
         """Vertex means ``(k, 2)`` for reference ``r``."""
         return (self.A @ r + self.b).reshape(-1, 2)
 
     def covariance(self) -> np.ndarray:
-        """``Sigma_v = K^-1`` ``(2k, 2k)``."""
-        return symmetrize(
-            scipy.linalg.cho_solve((np.linalg.cholesky(self.K), True), np.eye(self.K.shape[0]))
-        )
+        """``Sigma_v = K^-1`` ``(2k, 2k)`` (computed once; treat it as read-only)."""
+        if self._cov is None:
+            self._cov = symmetrize(
+                scipy.linalg.cho_solve((np.linalg.cholesky(self.K), True), np.eye(self.K.shape[0]))
+            )
+        return self._cov
 
     def select(
         self, source: np.ndarray, means: np.ndarray, covs: np.ndarray, r: np.ndarray
