@@ -100,7 +100,7 @@ def test_scan_error_type():
 def test_config_from_dict_and_presets():
     cfg = SlamConfig.from_dict({"preset": "thesis", "filter": {"min_set_beams": 6}})
     assert cfg.filter.min_set_beams == 6 and cfg.model.linearization == "ut"
-    assert cfg.filter.new_landmark == "thesis"
+    assert cfg.filter.unknown_chain_max_vertices == 0
     with pytest.raises(UnknownKeyError, match="did you mean 'min_set_beams'"):
         SlamConfig.from_dict({"filter": {"min_set_beam": 6}})
     with pytest.raises(UnknownKeyError, match="preset"):

@@ -57,6 +57,7 @@ from vslam_gym.slam.state_update import (
     POSE_DIM,
     REF_DIM,
     LandmarkConditional,
+    augment_landmark,
     state_space_update,
 )
 from vslam_gym.slam.update import update_model, update_unknown_lines, wrap_model
@@ -541,16 +542,29 @@ class VertexSLAM:
         if not self._detectable(model, fit.object_vertices):
             return None
         start, stop = fit.object_vertices
-        mu_r = model.mean[start:stop].mean(axis=0)
         k = model.n_vertices
+        select = np.zeros((REF_DIM, 2 * k))
+        for i in range(start, stop):  # r = mean of the object vertices (4.3.58)
+            select[:, 2 * i : 2 * i + 2] = np.eye(2) / (stop - start)
         try:
-            k_v = np.linalg.inv(model.cov)
-            k_v = symmetrize(k_v)
-            a2 = np.tile(np.eye(2), (k, 1))
-            b2 = model.mean.reshape(-1) - a2 @ mu_r
-            mu, sigma, cond = state_space_update(
-                self._mu, self._sigma, None, a2, b2, k_v, fit.A_vx, fit.b_vx, k_v
-            )
+            if self.config.filter.new_landmark == "thesis":
+                mu_r = select @ model.mean.reshape(-1)
+                k_v = symmetrize(np.linalg.inv(model.cov))
+                a2 = np.tile(np.eye(2), (k, 1))
+                b2 = model.mean.reshape(-1) - a2 @ mu_r
+                mu, sigma, cond = state_space_update(
+                    self._mu, self._sigma, None, a2, b2, k_v, fit.A_vx, fit.b_vx, k_v
+                )
+            else:
+                mu, sigma, cond = augment_landmark(
+                    self._mu,
+                    self._sigma,
+                    fit.A_vx,
+                    fit.b_vx,
+                    model.cov,
+                    select,
+                    self.config.filter.shape_sigma,
+                )
         except (ValueError, np.linalg.LinAlgError):  # NotPositiveDefiniteError included
             return None
         self._mu, self._sigma = mu, sigma
