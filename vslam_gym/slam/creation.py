@@ -31,7 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from vslam_gym.slam.config import ModelConfig, SensorConfig
 from vslam_gym.slam.gaussian import (
@@ -652,9 +652,9 @@ def coarseness_variances(
         stat.append(float(np.sum(d2 / var)))
     excess, dof, stat = np.array(excess), np.array(dof), np.array(stat)
     # Only residuals that the noise cannot explain (chi-square test) count as model error.
-    significant = stat > chi2.ppf(significance, np.maximum(dof, 1))
+    significant = stat > chdtri(np.maximum(dof, 1), 1.0 - significance)
     per_line = np.where(significant, np.maximum(excess, 0.0) / np.maximum(dof, 1), 0.0)
-    pooled_significant = stat.sum() > chi2.ppf(significance, max(dof.sum(), 1))
+    pooled_significant = stat.sum() > chdtri(max(dof.sum(), 1), 1.0 - significance)
     pooled = max(0.0, excess.sum() / max(dof.sum(), 1)) if pooled_significant else 0.0
     # Short lines estimate their own error poorly: never below the pooled estimate.
     return np.maximum(per_line, pooled)
