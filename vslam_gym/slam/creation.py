@@ -483,7 +483,9 @@ def _parallel_pairs(modeller: _SegmentModeller, groups: list[tuple[int, int]]) -
     dirs.append(pts[-1] - modeller.pose[:2])
     d = np.array(dirs)
     cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
-    return np.abs(cross) / (np.linalg.norm(d[:-1], axis=1) * np.linalg.norm(d[1:], axis=1))
+    norms = np.linalg.norm(d[:-1], axis=1) * np.linalg.norm(d[1:], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero-length line: sine 0
+        return np.where(norms > 0, np.abs(cross) / np.where(norms > 0, norms, 1.0), 0.0)
 
 
 def vertex_distribution(
