@@ -350,3 +350,14 @@ def test_world_format_error_pickles_with_its_message():
 def test_load_world_rejects_non_strings():
     with pytest.raises(TypeError):
         load_world(3)  # type: ignore[arg-type]
+
+
+def test_installed_package_ships_the_world_files(tmp_path, monkeypatch):
+    """The world files are package data of ``vslam_gym.worlds``: CI installs the wheel
+    (non-editable), so this loads them from site-packages, from any working directory."""
+    import importlib.resources
+
+    monkeypatch.chdir(tmp_path)
+    files = {p.name for p in importlib.resources.files("vslam_gym.worlds").iterdir()}
+    assert {"house.toml", "small.toml", "curved.toml", "single_landmark.toml"} <= files
+    assert len(load_world("house").obstacles) > 20
