@@ -205,6 +205,7 @@ class _Association:
     pose: np.ndarray
     candidates: tuple
     enough: bool
+    detection: Any = None
 
 
 class VertexSLAM:
@@ -398,6 +399,7 @@ class VertexSLAM:
                     res.pose.copy(),
                     (),
                     enough >= self.config.filter.min_object_lines,
+                    detection=det,
                 )
         if best is not None:
             best.candidates = tuple(tried)
@@ -452,6 +454,7 @@ class VertexSLAM:
                 self.sensor,
                 self.config.model,
                 self._lin,
+                association=assoc.detection,
                 object_vertices=lm.object_vertices,
             )
             f = upd.F
