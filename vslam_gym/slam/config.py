@@ -269,6 +269,9 @@ class FilterConfig:
             (``landmark.prune_unknown_chains``); 0 keeps every vertex (the thesis,
             whose chains grow with every update).
         unknown_chain_tolerance: see ``unknown_chain_max_vertices``.
+        observation_information_scale: the observation's information ``K_obs`` (``K3``)
+            is multiplied by this in the state-space update (1 in the thesis); below 1
+            it discounts the model errors the vertex covariances do not describe.
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -286,6 +289,7 @@ class FilterConfig:
     shape_sigma: float = 1e-3
     unknown_chain_max_vertices: int = 4
     unknown_chain_tolerance: float = 0.3
+    observation_information_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.new_landmark not in ("thesis", "augment"):

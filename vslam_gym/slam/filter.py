@@ -461,7 +461,15 @@ class VertexSLAM:
             a2, b2 = f.T @ lm.cond.A, f.T @ lm.cond.b
             k2 = f.T @ lm.cond.K @ f
             mu, sigma, cond = state_space_update(
-                self._mu, self._sigma, lm.ref, a2, b2, k2, upd.A_vx, upd.b_vx, upd.K_obs
+                self._mu,
+                self._sigma,
+                lm.ref,
+                a2,
+                b2,
+                k2,
+                upd.A_vx,
+                upd.b_vx,
+                self.config.filter.observation_information_scale * upd.K_obs,
             )
         except (ValueError, np.linalg.LinAlgError):  # UpdateError, degenerate geometry, ...
             return False
