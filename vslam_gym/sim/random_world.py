@@ -47,6 +47,8 @@ from vslam_gym.sim.world import (
 
 __all__ = ["RandomWorldError", "RandomWorldParams", "generate_random_world"]
 
+_QUOTA_PHASE = 25
+"""The kind quotas hold for the first ``1 / _QUOTA_PHASE`` of the placement attempts."""
 CLUTTER_KINDS = ("box", "l_shape", "disc", "post")
 """Clutter kinds, in the order of :attr:`RandomWorldParams.kind_weights`."""
 
@@ -68,7 +70,7 @@ class RandomWorldParams:
         door_width: doorway width [m] between the partition ends (centre lines).
         n_obstacles: number of clutter objects (walls not counted).
         clutter_size: ``(min, max)`` side [m] of boxes and L-shapes and diameter of discs.
-        post_radius: ``(min, max)`` radius [m] of the small posts.
+        post_radius: ``(min, max)`` half side [m] of the small square posts.
         kind_weights: relative frequency of box, L-shape, disc and post clutter.
         l_arm_fraction: ``(min, max)`` arm width of an L-shape as a fraction of its
             shorter side.
@@ -393,7 +395,7 @@ class _Candidates:
         kind = self.kind
         return np.select(
             [kind == CLUTTER_KINDS.index("post"), kind == CLUTTER_KINDS.index("disc")],
-            [self.post_radius, self.size[:, 0] / 2],
+            [self.post_radius * np.sqrt(2.0), self.size[:, 0] / 2],
             np.hypot(self.size[:, 0], self.size[:, 1]) / 2,
         )
 
@@ -401,8 +403,11 @@ class _Candidates:
         """Candidate ``j`` as an obstacle."""
         kind = CLUTTER_KINDS[int(self.kind[j])]
         center = (float(self.center[j, 0]), float(self.center[j, 1]))
-        if kind == "post":
-            return CircleObstacle(center=center, radius=float(self.post_radius[j]))
+        if kind == "post":  # a small square post (corners for the line landmarks)
+            r = float(self.post_radius[j])
+            local = np.array([[-r, -r], [r, -r], [r, r], [-r, r]])
+            pts = _rotate(local, float(self.angle[j]), self.center[j])
+            return PolygonObstacle(points=tuple((float(x), float(y)) for x, y in pts))
         if kind == "disc":
             return CircleObstacle(center=center, radius=float(self.size[j, 0]) / 2)
         w, h = (float(v) for v in self.size[j])
@@ -437,6 +442,15 @@ def _place_clutter(
     centers = np.empty((0, 2))
     radii = np.empty(0)
     placed: list[Obstacle] = []
+    # The mix of kinds is drawn once; candidates of a kind whose quota is full are
+    # skipped (otherwise small kinds, easier to place, would crowd out the others) for
+    # the first 1/_QUOTA_PHASE of the attempt budget, after which a crowded floor takes
+    # any kind.
+    weights = np.asarray(p.kind_weights) / sum(p.kind_weights)
+    quota = np.bincount(
+        rng.choice(len(CLUTTER_KINDS), size=p.n_obstacles, p=weights), minlength=len(CLUTTER_KINDS)
+    )
+    count = np.zeros(len(CLUTTER_KINDS), dtype=int)
     budget = p.max_attempts * p.n_obstacles
     drawn = 0
     while len(placed) < p.n_obstacles:
@@ -455,11 +469,14 @@ def _place_clutter(
             ok &= np.all(d - radii[None, :] - p.min_gap >= reach[:, None], axis=1)
         batch: list[int] = []
         for j in np.flatnonzero(ok):
+            if count[cand.kind[j]] >= quota[cand.kind[j]] and drawn < budget // _QUOTA_PHASE:
+                continue
             if batch:
                 d = np.linalg.norm(cand.center[batch] - cand.center[j], axis=1)
                 if np.any(d - reach[batch] - p.min_gap < reach[j]):
                     continue
             batch.append(int(j))
+            count[cand.kind[j]] += 1
             placed.append(cand.obstacle(int(j)))
             if len(placed) == p.n_obstacles:
                 break
