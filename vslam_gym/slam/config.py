@@ -251,7 +251,12 @@ class FilterConfig:
         min_beams_per_object_line: see ``min_object_lines``.
         icp_max_pose_mahalanobis: an ICP result whose pose is further than this from the
             predicted pose (Mahalanobis distance, 3 dof) is not a candidate. Not a
-            thesis value; ``inf`` disables it.
+            thesis value; ``inf`` (off) by default. Measured: on the first 150 steps of
+            ``house`` (seed 0) a gate of 5 prevents a divergence (position ATE 0.13 m
+            instead of 1.66 m; odometry 0.13 m), but on the synthetic loop of
+            ``tests/test_filter.py`` the overconfident pose covariance then rejects
+            correct associations (28 landmarks for 4 objects instead of 7); it becomes a
+            default once the pose covariance is consistent.
         new_landmark: how a new landmark enters the state: ``"thesis"`` (4.3.59-4.3.62:
             ``Phi2`` and ``Phi3`` both with ``K_v = Sigma_v^-1``, which counts the scan
             twice and informs the heading) or ``"augment"`` (exact augmentation of the
