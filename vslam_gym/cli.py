@@ -234,9 +234,16 @@ def _add_worlds(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=_cmd_worlds)
 
 
+def _add_evaluate(subparsers: argparse._SubParsersAction) -> None:
+    from vslam_gym.evaluation import add_evaluate_parser
+
+    add_evaluate_parser(subparsers)
+
+
 SUBCOMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
     "run": _add_run,
     "worlds": _add_worlds,
+    "evaluate": _add_evaluate,
 }
 """Subcommand name -> function adding its parser (which sets ``handler``)."""
 

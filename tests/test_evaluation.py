@@ -1,0 +1,373 @@
+import argparse
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from vslam_gym.evaluation import (
+    TIMING_KEYS,
+    DecisionRecord,
+    SeedsError,
+    add_evaluate_parser,
+    association_precision,
+    chi2_interval,
+    cmd_evaluate,
+    duplicate_fraction,
+    episode_metrics,
+    final_position_error,
+    format_table,
+    heading_rmse,
+    landmark_majority_ids,
+    majority_id,
+    mean_nees_interval,
+    nees_summary,
+    parse_seeds,
+    pose_nees,
+    position_ate_rmse,
+    run_episode,
+    write_tum,
+    yaw_quaternion,
+)
+from vslam_gym.sim.world_file import load_world, world_to_toml
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+REQUIRED_KEYS = {
+    "ate_rmse_m",
+    "odom_ate_rmse_m",
+    "heading_rmse_rad",
+    "final_error_m",
+    "nees_mean",
+    "nees_in_band_fraction",
+    "association_precision",
+    "duplicate_fraction",
+    "landmarks",
+    "step_ms_median",
+    "step_ms_p95",
+    "steps",
+    "world",
+    "preset",
+}
+
+
+# ---------------------------------------------------------------------- trajectory errors
+
+
+def test_ate_of_a_constant_offset_is_the_offset_length():
+    rng = np.random.default_rng(0)
+    true = np.column_stack([rng.uniform(-5, 5, (50, 2)), rng.uniform(-3, 3, 50)])
+    est = true + np.array([0.3, -0.4, 0.0])
+    assert position_ate_rmse(est, true) == pytest.approx(0.5, abs=1e-12)
+    assert final_position_error(est, true) == pytest.approx(0.5, abs=1e-12)
+    assert heading_rmse(est, true) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_ate_is_a_root_mean_square_not_a_mean():
+    true = np.zeros((2, 3))
+    est = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    assert position_ate_rmse(est, true) == pytest.approx(math.sqrt(2.0))
+    assert final_position_error(est, true) == pytest.approx(2.0)
+
+
+def test_heading_rmse_wraps_across_pi():
+    true = np.array([[0.0, 0.0, math.pi - 0.05], [0.0, 0.0, 0.0]])
+    est = np.array([[0.0, 0.0, -math.pi + 0.05], [0.0, 0.0, 0.2 + 4 * math.pi]])
+    assert heading_rmse(est, true) == pytest.approx(math.sqrt((0.1**2 + 0.2**2) / 2))
+
+
+def test_trajectory_errors_reject_mismatched_shapes():
+    with pytest.raises(ValueError, match="poses"):
+        position_ate_rmse(np.zeros((3, 3)), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="shape"):
+        heading_rmse(np.zeros((3, 2)), np.zeros((3, 2)))
+
+
+# ---------------------------------------------------------------------- NEES
+
+
+def test_nees_of_a_known_case_with_a_wrapped_heading():
+    cov = np.diag([4.0, 1.0, 0.01])
+    true = np.array([[2.0, 1.0, math.pi - 0.05]])
+    est = np.array([[0.0, 0.0, -math.pi + 0.05]])  # heading error -0.1 across pi
+    # (2^2/4) + (1^2/1) + (0.1^2/0.01) = 3
+    assert pose_nees(est, cov[None], true) == pytest.approx([3.0])
+
+
+def test_nees_uses_the_correlations():
+    cov = np.array([[1.0, 0.9, 0.0], [0.9, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    e = np.array([1.0, -1.0, 0.0])  # along the small-variance direction (1 - 0.9)
+    nees = pose_nees(np.zeros((1, 3)), cov[None], e[None])
+    assert nees[0] == pytest.approx(e @ np.linalg.solve(cov, e))
+    assert nees[0] == pytest.approx(20.0)
+
+
+def test_nees_is_nan_for_a_covariance_that_is_not_positive_definite():
+    covs = np.stack([np.eye(3), np.diag([1.0, -1.0, 1.0])])
+    nees = pose_nees(np.zeros((2, 3)), covs, np.ones((2, 3)))
+    assert nees[0] == pytest.approx(3.0)
+    assert np.isnan(nees[1])
+
+
+def test_chi2_intervals():
+    low, high = chi2_interval(3)
+    assert (low, high) == pytest.approx((0.2158, 9.3484), abs=1e-4)
+    lows, highs = zip(*(mean_nees_interval(n) for n in (1, 10, 100, 1000)), strict=True)
+    assert (lows[0], highs[0]) == pytest.approx((low, high))
+    assert all(a < b for a, b in zip(lows, lows[1:], strict=False))  # narrows around 3
+    assert all(a > b for a, b in zip(highs, highs[1:], strict=False))
+    assert lows[-1] < 3.0 < highs[-1]
+    assert highs[-1] - lows[-1] < 0.4
+
+
+def test_band_fraction_and_mean_test_on_hand_made_values():
+    summary = nees_summary(np.array([0.1, 1.0, 3.0, 9.0, 10.0, np.nan]))
+    assert summary["nees_in_band_fraction"] == pytest.approx(3 / 5)  # NaN ignored
+    assert summary["nees_mean"] == pytest.approx(23.1 / 5)
+    low, high = summary["nees_mean_interval"]
+    assert low < 23.1 / 5 < high
+    assert summary["nees_mean_consistent"] is True
+    overconfident = nees_summary(np.full(100, 30.0))
+    assert overconfident["nees_in_band_fraction"] == 0.0
+    assert overconfident["nees_mean_consistent"] is False
+
+
+def test_consistent_gaussian_errors_give_nees_3_and_95_percent_in_band():
+    rng = np.random.default_rng(1)
+    n = 4000
+    a = rng.normal(size=(n, 3, 3)) * np.array([0.3, 0.3, 0.05])[:, None]
+    covs = a @ a.transpose(0, 2, 1) + 1e-3 * np.eye(3)
+    errors = np.einsum("nij,nj->ni", np.linalg.cholesky(covs), rng.normal(size=(n, 3)))
+    est = np.column_stack([rng.uniform(-5, 5, (n, 2)), rng.uniform(-3, 3, n)])
+    summary = nees_summary(pose_nees(est, covs, est + errors))
+    assert summary["nees_mean"] == pytest.approx(3.0, abs=0.15)
+    assert summary["nees_in_band_fraction"] == pytest.approx(0.95, abs=0.015)
+    assert summary["nees_mean_consistent"] is True
+
+
+# ---------------------------------------------------------------------- associations
+
+
+def test_majority_id_ignores_no_returns_and_breaks_ties_low():
+    assert majority_id([-1, -1, -1, 2, 2, 3]) == 2
+    assert majority_id([5, 4, 5, 4]) == 4
+    assert majority_id([-1, -1]) == -1
+    assert majority_id(np.array([], dtype=int)) == -1
+
+
+def _decision_log():
+    d = DecisionRecord
+    return [
+        d(1, 0, 9, "created", 0, 1),  # landmark 0 from obstacle 1
+        d(1, 20, 29, "created", 1, 2),  # landmark 1 from obstacle 2
+        d(2, 0, 9, "updated", 0, 1),  # correct
+        d(2, 20, 29, "associated", 1, 2),  # correct (no update; does not vote)
+        d(3, 0, 9, "updated", 0, 2),  # wrong: obstacle 2 on landmark 0
+        d(3, 20, 29, "created", 2, 1),  # landmark 2: a duplicate of obstacle 1
+        d(4, 0, 9, "updated", 0, 1),  # correct
+        d(4, 30, 35, "skipped", -1, 3),
+        d(4, 40, 45, "unmatched", -1, 3),
+        d(5, 0, 9, "associated", 2, 3),  # wrong
+    ]
+
+
+def test_landmark_majority_ids_vote_over_created_and_updated_sets():
+    ids = landmark_majority_ids(_decision_log())
+    assert ids == {0: 1, 1: 2, 2: 1}
+
+
+def test_association_precision_on_a_tiny_decision_log():
+    log = _decision_log()
+    precision, associations = association_precision(log, landmark_majority_ids(log))
+    assert associations == 5
+    assert precision == pytest.approx(3 / 5)
+
+
+def test_association_precision_without_associations_is_nan():
+    precision, associations = association_precision([DecisionRecord(1, 0, 5, "created", 0, 0)], {})
+    assert associations == 0
+    assert math.isnan(precision)
+
+
+def test_duplicate_fraction():
+    assert duplicate_fraction(landmark_majority_ids(_decision_log())) == pytest.approx(1 - 2 / 3)
+    assert duplicate_fraction([0, 1, 2, 3]) == 0.0
+    assert duplicate_fraction([4, 4, 4, 4]) == pytest.approx(0.75)
+    assert duplicate_fraction([0, -1]) == pytest.approx(0.5)  # a landmark of nothing
+    assert math.isnan(duplicate_fraction([]))
+
+
+# ---------------------------------------------------------------------- TUM export
+
+
+def test_yaw_quaternion_of_known_yaws():
+    assert yaw_quaternion(0.0) == pytest.approx([0.0, 0.0, 0.0, 1.0])
+    half = math.sqrt(0.5)
+    assert yaw_quaternion(math.pi / 2) == pytest.approx([0.0, 0.0, half, half])
+    q = yaw_quaternion(np.array([0.3, -2.0]))
+    assert q.shape == (2, 4)
+    assert np.linalg.norm(q, axis=1) == pytest.approx([1.0, 1.0])
+    assert 2 * np.arctan2(q[:, 2], q[:, 3]) == pytest.approx([0.3, -2.0])
+
+
+def test_write_tum_line_format(tmp_path):
+    path = tmp_path / "traj.tum"
+    poses = np.array([[1.0, 2.0, 0.0], [1.5, 2.25, math.pi / 2], [2.0, 2.5, -3.0]])
+    write_tum(path, np.array([0.0, 0.1, 0.2]), poses)
+    lines = path.read_text().splitlines()
+    assert lines[0].startswith("#")
+    rows = lines[1:]
+    assert len(rows) == 3
+    assert all(len(r.split(" ")) == 8 and not r.endswith(" ") for r in rows)
+    assert rows[1].split(" ")[:4] == ["0.100000", "1.500000", "2.250000", "0.000000"]
+    data = np.loadtxt(path)  # '#' lines are comments, as in evo
+    half = math.sqrt(0.5)
+    assert data[1, 4:] == pytest.approx([0.0, 0.0, half, half], abs=1e-9)
+    assert 2 * np.arctan2(data[:, 6], data[:, 7]) == pytest.approx(poses[:, 2], abs=1e-8)
+
+
+def test_write_tum_rejects_bad_input(tmp_path):
+    with pytest.raises(ValueError, match="increasing"):
+        write_tum(tmp_path / "a.tum", np.array([0.0, 0.0]), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="entries"):
+        write_tum(tmp_path / "a.tum", np.array([0.0]), np.zeros((2, 3)))
+
+
+# ---------------------------------------------------------------------- command line
+
+
+@pytest.mark.parametrize(
+    ("text", "seeds"),
+    [("0-9", list(range(10))), ("0,3,5", [0, 3, 5]), ("7", [7]), ("0-2, 5", [0, 1, 2, 5])],
+)
+def test_parse_seeds(text, seeds):
+    assert parse_seeds(text) == seeds
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("", "not a seed"),
+        ("a", "not a seed"),
+        ("5-3", "reversed"),
+        ("1,1", "twice"),
+        ("0-", "not a seed"),
+    ],
+)
+def test_parse_seeds_rejects(text, message):
+    with pytest.raises(SeedsError, match=message):
+        parse_seeds(text)
+
+
+def _parser():
+    parser = argparse.ArgumentParser(prog="vslam-gym")
+    add_evaluate_parser(parser.add_subparsers(dest="command", required=True))
+    return parser
+
+
+def test_evaluate_parser():
+    args = _parser().parse_args(
+        ["evaluate", "--world", "house", "--seeds", "0-3", "--preset", "thesis", "--out", "d"]
+    )
+    assert (args.world, args.seeds, args.preset, args.out) == ("house", [0, 1, 2, 3], "thesis", "d")
+    assert args.max_steps is None and args.no_progress is False
+    assert args.handler is cmd_evaluate
+
+
+@pytest.mark.parametrize("bad", [["--seeds", "3-1"], ["--preset", "fast"]])
+def test_evaluate_parser_rejects(bad, capsys):
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["evaluate", "--world", "house", "--out", "d", *bad])
+    assert "error" in capsys.readouterr().err
+
+
+def test_run_episode_rejects_a_world_without_route(tmp_path):
+    world = dataclasses.replace(load_world("single_landmark"), route=None)
+    path = tmp_path / "no_route.toml"
+    path.write_text(world_to_toml(world))
+    with pytest.raises(ValueError, match="route"):
+        run_episode(str(path), seed=0, max_steps=5)
+    with pytest.raises(ValueError, match="max_steps"):
+        run_episode("single_landmark", seed=0, max_steps=0)
+
+
+# ---------------------------------------------------------------------- end to end
+
+E2E_STEPS = 60
+
+
+@pytest.fixture(scope="module")
+def episode():
+    return run_episode("single_landmark", seed=0, max_steps=E2E_STEPS)
+
+
+def test_episode_log_is_consistent(episode):
+    n = E2E_STEPS + 1
+    assert episode.steps == E2E_STEPS
+    assert episode.true_poses.shape == episode.slam_poses.shape == (n, 3)
+    assert episode.odometry_poses.shape == (n, 3)
+    assert episode.slam_covs.shape == (n, 3, 3)
+    assert np.allclose(episode.slam_covs, episode.slam_covs.transpose(0, 2, 1))
+    assert np.all(np.linalg.eigvalsh(episode.slam_covs) > 0)
+    assert episode.times[1] == pytest.approx(0.1)
+    # all three start at the true initial pose
+    assert np.allclose(episode.slam_poses[0], episode.true_poses[0])
+    assert np.allclose(episode.odometry_poses[0], episode.true_poses[0])
+    assert episode.landmark_counts[-1] == len(episode.final_belief.landmarks) >= 1
+    assert not episode.route_done
+    # the only obstacle is id 0: every set is on it
+    assert {d.majority_id for d in episode.decisions} == {0}
+    assert {d.step for d in episode.decisions} <= set(range(1, E2E_STEPS + 1))
+
+
+def _same(a, b):
+    """Equal metric values; NaN on one side is null (None) on the other (strict JSON)."""
+    if isinstance(a, float) and math.isnan(a):
+        return b is None
+    if isinstance(a, tuple | list):
+        return list(a) == list(b)
+    return a == b
+
+
+def test_evaluate_end_to_end_is_deterministic(episode, tmp_path, capsys):
+    out = tmp_path / "eval"
+    args = _parser().parse_args(
+        ["evaluate", "--world", "single_landmark", "--seeds", "0", "--out", str(out)]
+        + ["--max-steps", str(E2E_STEPS), "--no-progress"]
+    )
+    assert cmd_evaluate(args) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("single_landmark / preset default / 1 seed(s)")
+    assert "ATE m" in printed and "metrics.json" in printed
+
+    metrics = json.loads((out / "metrics.json").read_text())
+    seed = metrics["per_seed"][0]
+    assert REQUIRED_KEYS | {"seed"} <= seed.keys()
+    assert REQUIRED_KEYS <= metrics["mean"].keys()
+    assert seed["steps"] == E2E_STEPS and seed["seed"] == 0
+    assert seed["world"] == "single_landmark" and seed["preset"] == "default"
+    assert seed["landmarks"] >= 1
+    assert 0.0 < seed["odom_ate_rmse_m"] < 0.5
+    assert 0.0 <= seed["nees_in_band_fraction"] <= 1.0
+    assert 0.0 <= seed["duplicate_fraction"] < 1.0
+    assert seed["step_ms_median"] <= seed["step_ms_p95"]
+    for key in REQUIRED_KEYS - {"world", "preset"}:
+        assert metrics["mean"][key] == pytest.approx(seed[key]), key  # one seed
+    assert format_table(metrics).splitlines()[-1].split()[0] == "mean"
+
+    for name in ("trajectories", "map", "nees"):
+        png = out / f"{name}_seed0.png"
+        assert png.read_bytes()[:8] == PNG_MAGIC
+    for name in ("true", "odometry", "slam"):
+        tum = np.loadtxt(out / f"{name}_seed0.tum")
+        assert tum.shape == (E2E_STEPS + 1, 8)
+    slam_tum = np.loadtxt(out / "slam_seed0.tum")
+    true_tum = np.loadtxt(out / "true_seed0.tum")
+    ate = np.sqrt(np.mean(np.sum((slam_tum[1:, 1:3] - true_tum[1:, 1:3]) ** 2, axis=1)))
+    assert ate == pytest.approx(seed["ate_rmse_m"], abs=1e-5)
+
+    # the same seed in a second, independent run (the fixture) gives the same numbers
+    again = episode_metrics(episode)
+    assert again.keys() == seed.keys()
+    for key in again.keys() - set(TIMING_KEYS):
+        assert _same(again[key], seed[key]), key

@@ -1,0 +1,1077 @@
+"""Evaluation of the vertex-landmark SLAM on simulated worlds.
+
+One episode (:func:`run_episode`) drives a world's route in :class:`LidarWorldEnv` with
+the :class:`~vslam_gym.control.RouteFollower` on the TRUE pose and runs
+:class:`~vslam_gym.slam.filter.VertexSLAM` on every step with the noisy odometry and scan
+(and the nominal beam bearings). The ground truth (true pose, obstacle id of every beam)
+is logged next to the belief and used only by the metrics; the filter never sees it.
+
+Metrics (pure functions over arrays, below) are computed over the ``T`` filter steps
+(the initial pose, given to the filter, is not counted). No trajectory alignment: the
+filter's map frame is the world frame, both start at the true initial pose.
+
+:func:`evaluate` runs several seeds and writes, into one directory:
+
+- ``metrics.json``: per seed and the mean over seeds (see :func:`episode_metrics`);
+- per seed ``N``: ``trajectories_seed{N}.png``, ``map_seed{N}.png``, ``nees_seed{N}.png``;
+  TUM trajectories ``true_seed{N}.tum``, ``odometry_seed{N}.tum``, ``slam_seed{N}.tum``
+  (readable by ``evo``, e.g. ``evo_ape tum true_seed0.tum slam_seed0.tum``); and
+  ``episode_seed{N}.npz`` with the per-step arrays.
+
+Command line (wired into ``vslam-gym`` by :func:`add_evaluate_parser`)::
+
+    vslam-gym evaluate --world house --seeds 0-9 --preset default --out results/house
+
+Frames and units: world frame (right-handed, x east, y north, theta counter-clockwise
+from x); metres, radians, seconds; step times in milliseconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import platform
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import chi2
+
+from vslam_gym.slam.config import SensorConfig
+from vslam_gym.slam.filter import Belief, SlamConfig, VertexSLAM
+from vslam_gym.slam.geometry import wrap_angle
+
+__all__ = [
+    "ASSOCIATION_OUTCOMES",
+    "DecisionRecord",
+    "EpisodeLog",
+    "SeedsError",
+    "add_evaluate_parser",
+    "association_precision",
+    "chi2_interval",
+    "cmd_evaluate",
+    "duplicate_fraction",
+    "episode_metrics",
+    "evaluate",
+    "final_position_error",
+    "format_table",
+    "heading_rmse",
+    "landmark_majority_ids",
+    "majority_id",
+    "mean_nees_interval",
+    "nees_summary",
+    "parse_seeds",
+    "pose_nees",
+    "position_ate_rmse",
+    "run_episode",
+    "timing_summary",
+    "write_tum",
+    "yaw_quaternion",
+]
+
+POSE_DOF = 3
+"""Degrees of freedom of the pose NEES ``(x, y, theta)``."""
+CONFIDENCE = 0.95
+"""Probability mass of the two-sided chi-square intervals (per-step band, mean NEES)."""
+TIMING_PERCENTILE = 95.0
+"""Upper percentile [%] of the step times reported next to the median."""
+ELLIPSE_N_SIGMA = 3.0
+"""Standard deviations of the pose and landmark ellipses drawn in the figures."""
+ELLIPSE_EVERY = 20
+"""The trajectory figure draws a pose ellipse every this many steps."""
+MAP_MARGIN = 1.5
+"""Margin [m] around the true obstacles and path in the map figure (unknown lines that
+run to the maximum range are clipped)."""
+DEFAULT_STEP_LIMIT = 5000
+"""Step budget of an episode when ``max_steps`` is not given (a robot that cannot finish
+its route, e.g. stuck on an obstacle, must not run forever): 500 s of simulated time at
+the default control period, ten times the longest shipped route."""
+NO_HIT = -1
+"""``info["hit_ids"]`` of a beam with no return."""
+ASSOCIATION_OUTCOMES = ("updated", "associated")
+"""Decision outcomes that are a set-to-landmark association."""
+MAP_OUTCOMES = ("created", "updated")
+"""Decision outcomes whose set votes for the landmark's obstacle id."""
+TIMING_KEYS = ("step_ms_median", "step_ms_p95", "wall_s")
+"""Metrics that measure time (they differ between identical runs)."""
+
+ProgressCallback = Callable[[int, Belief], None]
+"""Called after every step with the step number (1-based) and the belief."""
+
+
+class SeedsError(ValueError):
+    """A ``--seeds`` specification that is not ``A-B``, ``a,b,c`` or ``n``."""
+
+
+# ---------------------------------------------------------------------------- logging
+
+
+@dataclass(frozen=True)
+class DecisionRecord:
+    """One measurement set's decision at one step, with its ground-truth obstacle.
+
+    Attributes:
+        step: the filter step (1-based) of the scan.
+        first: scan index of the set's first beam.
+        last: scan index of its last beam (inclusive).
+        outcome: the filter's outcome (``SetDecision.outcome``).
+        landmark: the landmark id it was associated with or created as, else -1.
+        majority_id: the obstacle id hit by most of the set's beams (:func:`majority_id`).
+    """
+
+    step: int
+    first: int
+    last: int
+    outcome: str
+    landmark: int
+    majority_id: int
+
+
+@dataclass
+class EpisodeLog:
+    """Everything one episode recorded; arrays have one row per pose (``T + 1``).
+
+    Row 0 is the initial pose (given to the filter), row ``t`` the pose after step ``t``.
+
+    Attributes:
+        world_name: the world's name.
+        world: the :class:`~vslam_gym.sim.world.World` driven in (true obstacles).
+        preset: the :class:`SlamConfig` preset name.
+        seed: the ``reset`` seed.
+        config: the filter's configuration (preset with the world's odometry alphas).
+        times: ``(T + 1,)`` simulated time [s].
+        true_poses: ``(T + 1, 3)`` true robot poses ``(x [m], y [m], theta [rad])``.
+        odometry_poses: ``(T + 1, 3)`` poses integrated from the noisy odometry.
+        slam_poses: ``(T + 1, 3)`` SLAM robot pose means.
+        slam_covs: ``(T + 1, 3, 3)`` SLAM pose covariances [m^2, m rad, rad^2] (the lidar
+            sits at the robot centre in simulation, so lidar and robot pose coincide).
+        step_ms: ``(T,)`` filter wall time per step [ms] (``Belief.step_ms``).
+        landmark_counts: ``(T + 1,)`` landmarks in the belief.
+        collisions: ``(T,)`` bool, the robot touched an obstacle during the step.
+        decisions: every set decision of every step, in order.
+        final_belief: the belief after the last step.
+        route_done: the route follower reached its last waypoint.
+        wall_s: wall time [s] of the episode (simulation, filter and logging).
+    """
+
+    world_name: str
+    world: Any
+    preset: str
+    seed: int
+    config: SlamConfig
+    times: np.ndarray
+    true_poses: np.ndarray
+    odometry_poses: np.ndarray
+    slam_poses: np.ndarray
+    slam_covs: np.ndarray
+    step_ms: np.ndarray
+    landmark_counts: np.ndarray
+    collisions: np.ndarray
+    decisions: list[DecisionRecord] = field(default_factory=list)
+    final_belief: Belief | None = None
+    route_done: bool = False
+    wall_s: float = 0.0
+
+    @property
+    def steps(self) -> int:
+        """Number of filter steps ``T``."""
+        return int(self.step_ms.size)
+
+
+def sensor_from_lidar(lidar: Any) -> SensorConfig:
+    """The estimator's :class:`SensorConfig` of a simulated ``LidarSpec`` (no offset)."""
+    return SensorConfig(
+        fov_deg=lidar.fov_deg,
+        resolution_deg=lidar.resolution_deg,
+        max_range=lidar.max_range,
+        sigma_range=lidar.sigma_range,
+        sigma_bearing_deg=lidar.sigma_bearing_deg,
+    )
+
+
+def slam_config(preset: str, odometry_alphas: Sequence[float]) -> SlamConfig:
+    """``SlamConfig.preset(preset)`` with the robot's odometry-noise ``alphas``."""
+    base = SlamConfig.preset(preset)
+    alphas = tuple(float(a) for a in odometry_alphas)
+    return dataclasses.replace(
+        base, filter=dataclasses.replace(base.filter, odometry_alphas=alphas)
+    )
+
+
+def run_episode(
+    world: str,
+    seed: int,
+    preset: str = "default",
+    max_steps: int | None = None,
+    progress: ProgressCallback | None = None,
+) -> EpisodeLog:
+    """Drive a world's route with SLAM in the loop and log truth and belief per step.
+
+    The route follower steers on the true pose; the filter gets only
+    ``obs["odometry"]``, ``obs["scan"]`` and the nominal bearings ``info["bearings"]``.
+    The episode ends when the route is done or after ``max_steps`` steps
+    (:data:`DEFAULT_STEP_LIMIT` when None).
+
+    Args:
+        world: shipped world name or path to a TOML world file (it needs a route).
+        seed: seed of ``env.reset``.
+        preset: ``"default"`` or ``"thesis"`` (:meth:`SlamConfig.preset`).
+        max_steps: largest number of steps, >= 1.
+        progress: optional callback after every step (step number, belief).
+
+    Returns:
+        The episode log.
+
+    Raises:
+        ValueError: an unknown world or preset, a world without a route, ``max_steps < 1``.
+    """
+    from vslam_gym.control import RouteFollower
+    from vslam_gym.env import LidarWorldEnv
+
+    if max_steps is not None and max_steps < 1:
+        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    limit = DEFAULT_STEP_LIMIT if max_steps is None else int(max_steps)
+    env = LidarWorldEnv(world=world)
+    if env.world is None or env.world.route is None:
+        raise ValueError(f"world {world!r} has no [route] to drive")
+    config = slam_config(preset, env.world.odometry.alphas)
+    sensor = sensor_from_lidar(env.lidar_spec)
+    period = env.physics_config.control_period
+    start = time.perf_counter()
+    obs, info = env.reset(seed=seed)
+    slam = VertexSLAM(sensor, config, initial_pose=info["pose"])
+    belief = slam.belief
+    follower = RouteFollower(env.world.route)
+    true_poses, odom_poses = [info["pose"]], [info["odom_pose"]]
+    slam_poses, slam_covs = [belief.robot_pose], [belief.pose_cov]
+    step_ms, counts, collisions = [], [len(belief.landmarks)], []
+    decisions: list[DecisionRecord] = []
+    try:
+        for step in range(1, limit + 1):
+            action = follower(info["pose"])
+            if follower.done:
+                break
+            obs, _, terminated, _, info = env.step(action)
+            belief = slam.step(obs["odometry"], obs["scan"], info["bearings"])
+            true_poses.append(info["pose"])
+            odom_poses.append(info["odom_pose"])
+            slam_poses.append(belief.robot_pose)
+            slam_covs.append(belief.pose_cov)
+            step_ms.append(belief.step_ms)
+            counts.append(len(belief.landmarks))
+            collisions.append(bool(info["collision"]))
+            hit_ids = info["hit_ids"]
+            decisions.extend(
+                DecisionRecord(
+                    step,
+                    d.first,
+                    d.last,
+                    d.outcome,
+                    d.landmark,
+                    majority_id(hit_ids[d.first : d.last + 1]),
+                )
+                for d in belief.decisions
+            )
+            if progress is not None:
+                progress(step, belief)
+            if terminated:
+                break
+        else:
+            follower(info["pose"])  # a last check: the final step may reach the end
+    finally:
+        env.close()
+    n = len(true_poses)
+    return EpisodeLog(
+        world_name=env.world.name,
+        world=env.world,
+        preset=preset,
+        seed=int(seed),
+        config=config,
+        times=np.arange(n) * period,
+        true_poses=np.array(true_poses, dtype=float),
+        odometry_poses=np.array(odom_poses, dtype=float),
+        slam_poses=np.array(slam_poses, dtype=float),
+        slam_covs=np.array(slam_covs, dtype=float),
+        step_ms=np.array(step_ms, dtype=float),
+        landmark_counts=np.array(counts, dtype=int),
+        collisions=np.array(collisions, dtype=bool),
+        decisions=decisions,
+        final_belief=belief,
+        route_done=follower.done,
+        wall_s=time.perf_counter() - start,
+    )
+
+
+# ---------------------------------------------------------------------------- metrics
+
+
+def _poses(name: str, poses: np.ndarray, columns: int) -> np.ndarray:
+    arr = np.asarray(poses, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] < columns or arr.shape[0] == 0:
+        raise ValueError(f"{name} must have shape (N, >={columns}) with N >= 1, got {arr.shape}")
+    return arr
+
+
+def _same_length(a: np.ndarray, b: np.ndarray) -> None:
+    if a.shape[0] != b.shape[0]:
+        raise ValueError(f"estimate has {a.shape[0]} poses but the truth has {b.shape[0]}")
+
+
+def position_ate_rmse(estimated: np.ndarray, true: np.ndarray) -> float:
+    """Absolute trajectory error of the position: RMSE [m] over poses, no alignment.
+
+    Args:
+        estimated: ``(N, >=2)`` estimated poses; columns 0-1 are ``(x, y)`` [m].
+        true: ``(N, >=2)`` true poses at the same times.
+
+    Returns:
+        ``sqrt(mean_t |p_est,t - p_true,t|^2)`` [m].
+    """
+    est, ref = _poses("estimated", estimated, 2), _poses("true", true, 2)
+    _same_length(est, ref)
+    d = est[:, :2] - ref[:, :2]
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+def heading_rmse(estimated: np.ndarray, true: np.ndarray) -> float:
+    """RMSE [rad] of the heading error, each error wrapped to ``[-pi, pi)``.
+
+    Args:
+        estimated: ``(N, 3)`` estimated poses ``(x, y, theta [rad])``.
+        true: ``(N, 3)`` true poses.
+    """
+    est, ref = _poses("estimated", estimated, 3), _poses("true", true, 3)
+    _same_length(est, ref)
+    e = wrap_angle(est[:, 2] - ref[:, 2])
+    return float(np.sqrt(np.mean(e * e)))
+
+
+def final_position_error(estimated: np.ndarray, true: np.ndarray) -> float:
+    """Distance [m] between the last estimated and the last true position."""
+    est, ref = _poses("estimated", estimated, 2), _poses("true", true, 2)
+    _same_length(est, ref)
+    return float(np.hypot(*(est[-1, :2] - ref[-1, :2])))
+
+
+def pose_nees(estimated: np.ndarray, covariances: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """Normalised estimation error squared of the pose, per step (3 dof, no unit).
+
+    ``e^T P^-1 e`` with ``e = true - estimated`` (heading wrapped to ``[-pi, pi)``) and
+    ``P`` the ``(3, 3)`` pose covariance [m^2, m rad, rad^2]. For a consistent filter it
+    is chi-square distributed with 3 degrees of freedom (mean 3).
+
+    Args:
+        estimated: ``(N, 3)`` pose means ``(x [m], y [m], theta [rad])``.
+        covariances: ``(N, 3, 3)`` their covariances.
+        true: ``(N, 3)`` true poses.
+
+    Returns:
+        ``(N,)`` NEES values; NaN where a covariance is not positive definite.
+    """
+    est, ref = _poses("estimated", estimated, 3), _poses("true", true, 3)
+    _same_length(est, ref)
+    cov = np.asarray(covariances, dtype=float)
+    if cov.shape != (est.shape[0], POSE_DOF, POSE_DOF):
+        raise ValueError(f"covariances must have shape ({est.shape[0]}, 3, 3), got {cov.shape}")
+    e = ref[:, :3] - est[:, :3]
+    e[:, 2] = wrap_angle(e[:, 2])
+    out = np.full(est.shape[0], np.nan)
+    for t in range(est.shape[0]):
+        try:
+            chol = np.linalg.cholesky(0.5 * (cov[t] + cov[t].T))
+        except np.linalg.LinAlgError:
+            continue
+        white = np.linalg.solve(chol, e[t])
+        out[t] = float(white @ white)
+    return out
+
+
+def chi2_interval(dof: float, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """Two-sided interval of a chi-square variable holding ``confidence`` of its mass.
+
+    Returns ``(ppf((1 - c) / 2), ppf((1 + c) / 2))``; for 3 dof at 95 %: (0.216, 9.348).
+    """
+    if not (dof > 0 and 0.0 < confidence < 1.0):
+        raise ValueError(f"need dof > 0 and 0 < confidence < 1, got {dof}, {confidence}")
+    tail = (1.0 - confidence) / 2.0
+    return float(chi2.ppf(tail, dof)), float(chi2.ppf(1.0 - tail, dof))
+
+
+def mean_nees_interval(
+    n: int, dof: int = POSE_DOF, confidence: float = CONFIDENCE
+) -> tuple[float, float]:
+    """Interval of the mean of ``n`` independent chi-square(``dof``) NEES values.
+
+    ``n * mean`` is chi-square with ``dof * n`` degrees of freedom, so the interval is
+    that of ``chi2(dof n) / n``. Successive filter steps are correlated, so this test is
+    stricter than its nominal level on a trajectory (Bar-Shalom's test assumes
+    independent runs).
+    """
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    low, high = chi2_interval(dof * n, confidence)
+    return low / n, high / n
+
+
+def nees_summary(
+    nees: np.ndarray, dof: int = POSE_DOF, confidence: float = CONFIDENCE
+) -> dict[str, Any]:
+    """Mean NEES, fraction of steps inside the per-step band, and the mean test.
+
+    Args:
+        nees: ``(N,)`` NEES values (NaN entries are ignored).
+        dof: degrees of freedom of each value.
+        confidence: mass of the two-sided intervals.
+
+    Returns:
+        ``nees_mean``; ``nees_in_band_fraction`` (steps with NEES inside the per-step
+        ``chi2(dof)`` interval, over finite steps); ``nees_band`` ``[low, high]``;
+        ``nees_mean_interval`` (:func:`mean_nees_interval`) and ``nees_mean_consistent``
+        (the mean lies inside it). NaN / False when no value is finite.
+    """
+    values = np.asarray(nees, dtype=float).ravel()
+    finite = values[np.isfinite(values)]
+    band = chi2_interval(dof, confidence)
+    if finite.size == 0:
+        return {
+            "nees_mean": math.nan,
+            "nees_in_band_fraction": math.nan,
+            "nees_band": list(band),
+            "nees_mean_interval": [math.nan, math.nan],
+            "nees_mean_consistent": False,
+        }
+    mean = float(finite.mean())
+    interval = mean_nees_interval(finite.size, dof, confidence)
+    inside = (finite >= band[0]) & (finite <= band[1])
+    return {
+        "nees_mean": mean,
+        "nees_in_band_fraction": float(inside.mean()),
+        "nees_band": list(band),
+        "nees_mean_interval": list(interval),
+        "nees_mean_consistent": bool(interval[0] <= mean <= interval[1]),
+    }
+
+
+def majority_id(hit_ids: Iterable[int]) -> int:
+    """The most frequent obstacle id among beams, ignoring ``-1`` (no return).
+
+    Ties go to the smallest id; ``-1`` when no beam hit anything.
+    """
+    counts = Counter(int(i) for i in np.asarray(hit_ids).ravel() if int(i) != NO_HIT)
+    if not counts:
+        return NO_HIT
+    top = max(counts.values())
+    return min(i for i, c in counts.items() if c == top)
+
+
+def landmark_majority_ids(decisions: Iterable[DecisionRecord]) -> dict[int, int]:
+    """Each landmark's obstacle id: the majority over the sets that created or updated it.
+
+    Every set with outcome ``"created"`` or ``"updated"`` votes its own majority id for
+    its landmark (sets whose majority is ``-1`` do not vote); ties go to the smallest id.
+    Landmarks with no vote map to ``-1``.
+
+    Returns:
+        ``{landmark id: obstacle id}`` for every landmark that appears in ``decisions``.
+    """
+    votes: dict[int, list[int]] = {}
+    for d in decisions:
+        if d.landmark < 0:
+            continue
+        ballot = votes.setdefault(d.landmark, [])
+        if d.outcome in MAP_OUTCOMES and d.majority_id != NO_HIT:
+            ballot.append(d.majority_id)
+    return {lm: majority_id(ids) for lm, ids in votes.items()}
+
+
+def association_precision(
+    decisions: Iterable[DecisionRecord], landmark_ids: Mapping[int, int]
+) -> tuple[float, int]:
+    """Fraction of set-to-landmark associations that are correct.
+
+    An association is a decision with outcome ``"updated"`` or ``"associated"``; it is
+    correct when the set's majority obstacle id equals the landmark's
+    (:func:`landmark_majority_ids`).
+
+    Returns:
+        ``(precision, associations)``; precision is NaN when there is no association.
+    """
+    total = correct = 0
+    for d in decisions:
+        if d.outcome not in ASSOCIATION_OUTCOMES:
+            continue
+        total += 1
+        truth = landmark_ids.get(d.landmark, NO_HIT)
+        correct += int(truth != NO_HIT and d.majority_id == truth)
+    return (correct / total if total else math.nan), total
+
+
+def duplicate_fraction(landmark_ids: Mapping[int, int] | Sequence[int]) -> float:
+    """``1 - (distinct obstacles among the landmarks' ids) / landmarks``.
+
+    0 when every landmark models a different obstacle; ``1 - 1/k`` for ``k`` landmarks of
+    one obstacle. Landmarks with id ``-1`` (no obstacle) count as landmarks only. NaN
+    for no landmark.
+
+    Args:
+        landmark_ids: per landmark its obstacle id (a mapping's values, or a sequence).
+    """
+    ids = list(landmark_ids.values()) if isinstance(landmark_ids, Mapping) else list(landmark_ids)
+    if not ids:
+        return math.nan
+    distinct = {i for i in ids if i != NO_HIT}
+    return 1.0 - len(distinct) / len(ids)
+
+
+def timing_summary(
+    step_ms: np.ndarray, percentile: float = TIMING_PERCENTILE
+) -> tuple[float, float]:
+    """Median and ``percentile``-th percentile [ms] of per-step times [ms] (NaN if empty)."""
+    ms = np.asarray(step_ms, dtype=float).ravel()
+    if ms.size == 0:
+        return math.nan, math.nan
+    return float(np.median(ms)), float(np.percentile(ms, percentile))
+
+
+def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
+    """Every metric of one episode, over its ``T`` filter steps (rows ``1..T``).
+
+    Keys (units): ``world``, ``preset``, ``seed``, ``steps``, ``route_done``,
+    ``collision_steps``; ``ate_rmse_m`` / ``odom_ate_rmse_m`` (position ATE RMSE [m] of
+    SLAM / odometry only); ``heading_rmse_rad`` / ``odom_heading_rmse_rad`` [rad];
+    ``final_error_m`` / ``odom_final_error_m`` [m]; ``nees_*`` (:func:`nees_summary`);
+    ``association_precision`` and ``associations``; ``landmarks`` (final count),
+    ``obstacles_mapped`` (distinct true obstacles among them), ``obstacles``,
+    ``landmarks_per_obstacle`` (landmarks / obstacles mapped), ``duplicate_fraction``;
+    ``step_ms_median``, ``step_ms_p95`` [ms]; ``wall_s`` [s].
+    """
+    if log.steps == 0:
+        raise ValueError("the episode has no step to evaluate")
+    true, odom, est = log.true_poses[1:], log.odometry_poses[1:], log.slam_poses[1:]
+    nees = pose_nees(est, log.slam_covs[1:], true)
+    final = log.final_belief
+    ids = landmark_majority_ids(log.decisions)
+    final_ids = {lm.id: ids.get(lm.id, NO_HIT) for lm in final.landmarks}
+    mapped = len({i for i in final_ids.values() if i != NO_HIT})
+    precision, associations = association_precision(log.decisions, ids)
+    median, p95 = timing_summary(log.step_ms)
+    out: dict[str, Any] = {
+        "world": log.world_name,
+        "preset": log.preset,
+        "seed": log.seed,
+        "steps": log.steps,
+        "route_done": log.route_done,
+        "collision_steps": int(log.collisions.sum()),
+        "ate_rmse_m": position_ate_rmse(est, true),
+        "odom_ate_rmse_m": position_ate_rmse(odom, true),
+        "heading_rmse_rad": heading_rmse(est, true),
+        "odom_heading_rmse_rad": heading_rmse(odom, true),
+        "final_error_m": final_position_error(est, true),
+        "odom_final_error_m": final_position_error(odom, true),
+    }
+    out.update(nees_summary(nees))
+    out.update(
+        {
+            "association_precision": precision,
+            "associations": associations,
+            "landmarks": len(final.landmarks),
+            "obstacles_mapped": mapped,
+            "obstacles": len(log.world.obstacles),
+            "landmarks_per_obstacle": len(final.landmarks) / mapped if mapped else math.nan,
+            "duplicate_fraction": duplicate_fraction(final_ids),
+            "step_ms_median": median,
+            "step_ms_p95": p95,
+            "wall_s": log.wall_s,
+        }
+    )
+    return out
+
+
+def mean_metrics(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Mean over seeds of every numeric metric (NaNs ignored; booleans as fractions).
+
+    Non-numeric keys (``world``, ``preset``) are copied from the first seed; ``seed``
+    becomes the list ``seeds``.
+    """
+    if not per_seed:
+        raise ValueError("no seed to average")
+    out: dict[str, Any] = {}
+    for key, value in per_seed[0].items():
+        if key == "seed":
+            out["seeds"] = [m["seed"] for m in per_seed]
+        elif isinstance(value, bool | int | float | np.floating | np.integer):
+            values = np.array([float(m[key]) for m in per_seed])
+            finite = values[np.isfinite(values)]
+            out[key] = float(finite.mean()) if finite.size else math.nan
+        elif isinstance(value, list):
+            out[key] = value  # the chi-square band is the same for every seed
+        else:
+            out[key] = value
+    out["nees_mean_interval"] = None  # depends on each seed's step count
+    return out
+
+
+# ---------------------------------------------------------------------------- TUM export
+
+
+def yaw_quaternion(yaw: np.ndarray | float) -> np.ndarray:
+    """Unit quaternion ``(qx, qy, qz, qw)`` of a rotation by ``yaw`` [rad] about +z.
+
+    Returns shape ``(4,)`` for a scalar, ``(N, 4)`` for ``(N,)`` yaws.
+    """
+    half = 0.5 * np.asarray(yaw, dtype=float)
+    zeros = np.zeros_like(half)
+    return np.stack([zeros, zeros, np.sin(half), np.cos(half)], axis=-1)
+
+
+def write_tum(path: str | os.PathLike[str], times: np.ndarray, poses: np.ndarray) -> None:
+    """Write a planar trajectory in the TUM format (``evo`` reads it).
+
+    One line per pose, ``timestamp tx ty tz qx qy qz qw`` separated by single spaces,
+    with ``tz = 0`` and the yaw quaternion of :func:`yaw_quaternion`; a leading ``#``
+    comment line names the columns.
+
+    Args:
+        path: output file.
+        times: ``(N,)`` timestamps [s], strictly increasing.
+        poses: ``(N, 3)`` poses ``(x [m], y [m], theta [rad])``, world frame.
+    """
+    t = np.asarray(times, dtype=float).ravel()
+    p = _poses("poses", poses, 3)
+    if t.size != p.shape[0]:
+        raise ValueError(f"times has {t.size} entries but poses has {p.shape[0]}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p[:, :3]))):
+        raise ValueError("times and poses must be finite")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("times must be strictly increasing")
+    q = yaw_quaternion(p[:, 2])
+    lines = ["# timestamp tx ty tz qx qy qz qw"]
+    lines.extend(
+        f"{ti:.6f} {x:.6f} {y:.6f} 0.000000 {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}"
+        for ti, x, y, (qx, qy, qz, qw) in zip(t, p[:, 0], p[:, 1], q, strict=True)
+    )
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+# ---------------------------------------------------------------------------- figures
+
+
+def _draw_obstacles(ax: Any, world: Any, **style: Any) -> None:
+    """Draw the true obstacles of ``world`` as filled patches."""
+    from matplotlib.patches import Circle, Polygon
+
+    for obstacle in world.obstacles:
+        if obstacle.kind == "polygon":
+            ax.add_patch(Polygon(np.asarray(obstacle.points), closed=True, **style))
+        elif obstacle.kind == "circle":
+            ax.add_patch(Circle(obstacle.center, obstacle.radius, **style))
+        else:  # a wall: one rectangle per segment, discs at the joints
+            points = np.asarray(obstacle.points, dtype=float)
+            half = obstacle.thickness / 2.0
+            for a, b in zip(points[:-1], points[1:], strict=True):
+                d = b - a
+                length = float(np.hypot(*d))
+                if length == 0.0:
+                    continue
+                n = np.array([-d[1], d[0]]) / length * half
+                ax.add_patch(Polygon(np.array([a + n, b + n, b - n, a - n]), **style))
+            for p in points:
+                ax.add_patch(Circle(tuple(p), half, **style))
+
+
+def _world_box(log: EpisodeLog) -> tuple[np.ndarray, np.ndarray]:
+    """Lower-left and upper-right corners [m] of the obstacles and the true path."""
+    from vslam_gym.sim.shapes import obstacle_bounds
+
+    boxes = np.array([obstacle_bounds(o) for o in log.world.obstacles]).reshape(-1, 4)
+    xy = log.true_poses[:, :2]
+    low = np.min(np.vstack([boxes[:, :2], xy]), axis=0)
+    high = np.max(np.vstack([boxes[:, 2:], xy]), axis=0)
+    return low, high
+
+
+def _new_figure(size: tuple[float, float]) -> tuple[Any, Any]:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size, dpi=110, layout="constrained")
+    return fig, fig.subplots()
+
+
+def plot_trajectories(log: EpisodeLog, path: str | os.PathLike[str]) -> None:
+    """Save true / odometry-only / SLAM paths with 3-sigma SLAM pose ellipses."""
+    from matplotlib.patches import Ellipse
+
+    from vslam_gym.slam.plotting import covariance_ellipse
+
+    fig, ax = _new_figure((9, 7))
+    _draw_obstacles(ax, log.world, facecolor="0.75", edgecolor="0.45", linewidth=0.5)
+    ax.plot(*log.true_poses[:, :2].T, "-", color="k", linewidth=1.5, label="true")
+    ax.plot(*log.odometry_poses[:, :2].T, "--", color="tab:orange", label="odometry only")
+    ax.plot(*log.slam_poses[:, :2].T, "-", color="tab:blue", linewidth=1.2, label="SLAM")
+    for t in range(ELLIPSE_EVERY, log.slam_poses.shape[0], ELLIPSE_EVERY):
+        width, height, angle = covariance_ellipse(
+            log.slam_poses[t, :2], log.slam_covs[t, :2, :2], ELLIPSE_N_SIGMA
+        )
+        ax.add_patch(
+            Ellipse(
+                tuple(log.slam_poses[t, :2]),
+                width,
+                height,
+                angle=angle,
+                fill=False,
+                edgecolor="tab:blue",
+                linewidth=0.8,
+            )
+        )
+    ax.plot(*log.true_poses[0, :2], "o", color="tab:green", label="start")
+    ax.plot([], [], color="tab:blue", linewidth=0.8, label=f"SLAM {ELLIPSE_N_SIGMA:g}-sigma")
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{log.world_name}, seed {log.seed}, {log.preset}: {log.steps} steps")
+    ax.legend(loc="best", fontsize="small")
+    fig.savefig(path)
+
+
+def plot_map(log: EpisodeLog, path: str | os.PathLike[str]) -> None:
+    """Save the final landmark map (3-sigma vertex ellipses) over the true obstacles."""
+    from vslam_gym.slam.plotting import plot_models
+
+    fig, ax = _new_figure((9, 7))
+    _draw_obstacles(ax, log.world, facecolor="0.9", edgecolor="0.7", linewidth=0.5)
+    landmarks = log.final_belief.landmarks
+    if landmarks:
+        plot_models(
+            [lm.model for lm in landmarks],
+            ax,
+            n_sigma=ELLIPSE_N_SIGMA,
+            unknown_threshold=log.config.model.unknown_threshold,
+        )
+        ids = landmark_majority_ids(log.decisions)
+        for lm in landmarks:
+            ax.annotate(
+                f"L{lm.id}:o{ids.get(lm.id, NO_HIT)}",
+                tuple(lm.reference),
+                fontsize="x-small",
+                ha="center",
+            )
+    ax.plot(*log.true_poses[:, :2].T, ":", color="0.5", linewidth=0.8, label="true path")
+    ax.set_aspect("equal")
+    low, high = _world_box(log)
+    ax.set_xlim(low[0] - MAP_MARGIN, high[0] + MAP_MARGIN)
+    ax.set_ylim(low[1] - MAP_MARGIN, high[1] + MAP_MARGIN)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(
+        f"{log.world_name}, seed {log.seed}: {len(landmarks)} landmarks "
+        f"(L<landmark>:o<majority obstacle>), {len(log.world.obstacles)} obstacles"
+    )
+    ax.legend(loc="best", fontsize="small")
+    fig.savefig(path)
+
+
+def plot_nees(log: EpisodeLog, path: str | os.PathLike[str]) -> None:
+    """Save the pose NEES over time (log scale) with its 95 % chi-square(3) band."""
+    nees = pose_nees(log.slam_poses[1:], log.slam_covs[1:], log.true_poses[1:])
+    summary = nees_summary(nees)
+    low, high = summary["nees_band"]
+    t = log.times[1:]
+    floor = np.finfo(float).tiny
+    fig, ax = _new_figure((9, 4.5))
+    ax.axhspan(low, high, color="tab:green", alpha=0.15, label=f"{CONFIDENCE:.0%} band")
+    ax.axhline(POSE_DOF, color="tab:green", linewidth=0.8, label=f"expected ({POSE_DOF})")
+    ax.semilogy(t, np.maximum(nees, floor), color="tab:blue", linewidth=1.0, label="pose NEES")
+    ax.axhline(summary["nees_mean"], color="tab:red", linestyle="--", linewidth=0.8, label="mean")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("NEES (3 dof)")
+    ax.set_title(
+        f"{log.world_name}, seed {log.seed}: mean {summary['nees_mean']:.3g}, "
+        f"{summary['nees_in_band_fraction']:.0%} of steps in band"
+    )
+    ax.legend(loc="best", fontsize="small")
+    fig.savefig(path)
+
+
+# ---------------------------------------------------------------------------- evaluate
+
+
+def _json_safe(value: Any) -> Any:
+    """Replace NaN/inf by None (strict JSON) and numpy scalars by Python ones."""
+    if isinstance(value, Mapping):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _progress_bar(total: int | None, desc: str, enabled: bool) -> Any:
+    """A tqdm bar when tqdm is installed and ``enabled``, else None."""
+    if not enabled:
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, desc=desc, unit="step", leave=False, file=sys.stderr)
+
+
+def save_episode(log: EpisodeLog, out_dir: Path) -> list[Path]:
+    """Write one episode's figures, TUM trajectories and arrays; return the paths."""
+    suffix = f"_seed{log.seed}"
+    paths = {
+        "trajectories": out_dir / f"trajectories{suffix}.png",
+        "map": out_dir / f"map{suffix}.png",
+        "nees": out_dir / f"nees{suffix}.png",
+        "true": out_dir / f"true{suffix}.tum",
+        "odometry": out_dir / f"odometry{suffix}.tum",
+        "slam": out_dir / f"slam{suffix}.tum",
+        "arrays": out_dir / f"episode{suffix}.npz",
+    }
+    plot_trajectories(log, paths["trajectories"])
+    plot_map(log, paths["map"])
+    plot_nees(log, paths["nees"])
+    write_tum(paths["true"], log.times, log.true_poses)
+    write_tum(paths["odometry"], log.times, log.odometry_poses)
+    write_tum(paths["slam"], log.times, log.slam_poses)
+    np.savez_compressed(
+        paths["arrays"],
+        times=log.times,
+        true_poses=log.true_poses,
+        odometry_poses=log.odometry_poses,
+        slam_poses=log.slam_poses,
+        slam_covs=log.slam_covs,
+        step_ms=log.step_ms,
+        landmark_counts=log.landmark_counts,
+        collisions=log.collisions,
+    )
+    return list(paths.values())
+
+
+def evaluate(
+    world: str,
+    seeds: Sequence[int],
+    preset: str = "default",
+    out_dir: str | os.PathLike[str] = "evaluation",
+    progress: bool = True,
+    max_steps: int | None = None,
+    print_table: bool = True,
+) -> dict[str, Any]:
+    """Run one episode per seed and write metrics, figures and trajectories.
+
+    Args:
+        world: shipped world name or path to a TOML world file (with a route).
+        seeds: ``reset`` seeds, at least one.
+        preset: ``"default"`` or ``"thesis"``.
+        out_dir: output directory (created if needed).
+        progress: show a tqdm progress bar per seed (silently none without tqdm).
+        max_steps: step budget per episode (None: until the route is done).
+        print_table: print :func:`format_table` of the result to standard output.
+
+    Returns:
+        The content of ``out_dir/metrics.json``: ``world``, ``preset``, ``seeds``,
+        ``machine``, ``per_seed`` (one :func:`episode_metrics` dict per seed) and ``mean``
+        (:func:`mean_metrics`). NaN metrics are written as ``null``.
+    """
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise ValueError("evaluate needs at least one seed")
+    SlamConfig.preset(preset)  # fail early on an unknown preset
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    per_seed = []
+    for seed in seeds:
+        bar = _progress_bar(max_steps, f"{world} seed {seed}", progress)
+
+        def tick(step: int, belief: Belief, bar: Any = bar) -> None:
+            bar.update(1)
+            bar.set_postfix(landmarks=len(belief.landmarks), refresh=False)
+
+        try:
+            log = run_episode(world, seed, preset, max_steps, tick if bar is not None else None)
+        finally:
+            if bar is not None:
+                bar.close()
+        per_seed.append(episode_metrics(log))
+        save_episode(log, out)
+    result = {
+        "world": per_seed[0]["world"],
+        "preset": preset,
+        "seeds": seeds,
+        "machine": machine_description(),
+        "per_seed": per_seed,
+        "mean": mean_metrics(per_seed),
+    }
+    result = _json_safe(result)
+    (out / "metrics.json").write_text(json.dumps(result, indent=2) + "\n")
+    if print_table:
+        print(format_table(result))
+    return result
+
+
+def machine_description() -> str:
+    """CPU, core count, Python and numpy versions, for timing figures."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return (
+        f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
+    )
+
+
+_TABLE_COLUMNS = (
+    ("steps", "steps", "{:.0f}"),
+    ("ATE m", "ate_rmse_m", "{:.3f}"),
+    ("odo ATE m", "odom_ate_rmse_m", "{:.3f}"),
+    ("hdg rad", "heading_rmse_rad", "{:.4f}"),
+    ("odo hdg", "odom_heading_rmse_rad", "{:.4f}"),
+    ("final m", "final_error_m", "{:.3f}"),
+    ("NEES", "nees_mean", "{:.3g}"),
+    ("in band", "nees_in_band_fraction", "{:.2f}"),
+    ("assoc P", "association_precision", "{:.3f}"),
+    ("dup", "duplicate_fraction", "{:.2f}"),
+    ("LMs", "landmarks", "{:.1f}"),
+    ("ms med", "step_ms_median", "{:.1f}"),
+    ("ms p95", "step_ms_p95", "{:.1f}"),
+)
+
+
+def format_table(metrics: Mapping[str, Any]) -> str:
+    """A fixed-width summary table: one row per seed and the mean.
+
+    Args:
+        metrics: the result of :func:`evaluate` (or ``metrics.json`` loaded).
+    """
+
+    def cell(value: Any, fmt: str) -> str:
+        if value is None or (isinstance(value, float) and not math.isfinite(value)):
+            return "-"
+        return fmt.format(value)
+
+    header = ["seed"] + [name for name, _, _ in _TABLE_COLUMNS]
+    rows = [
+        [str(m["seed"])] + [cell(m.get(key), fmt) for _, key, fmt in _TABLE_COLUMNS]
+        for m in metrics["per_seed"]
+    ]
+    mean = metrics["mean"]
+    rows.append(["mean"] + [cell(mean.get(key), fmt) for _, key, fmt in _TABLE_COLUMNS])
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(cells: Sequence[str]) -> str:
+        return "  ".join(c.rjust(w) for c, w in zip(cells, widths, strict=True))
+
+    title = f"{metrics['world']} / preset {metrics['preset']} / {len(metrics['per_seed'])} seed(s)"
+    rule = "-" * len(line(header))
+    return "\n".join([title, line(header), rule, *map(line, rows[:-1]), rule, line(rows[-1])])
+
+
+# ---------------------------------------------------------------------------- command line
+
+
+def parse_seeds(text: str) -> list[int]:
+    """Seeds from ``"0-9"`` (inclusive range), ``"0,3,5"``, ``"7"`` or combinations.
+
+    Raises:
+        SeedsError: empty parts, negative or non-integer seeds, a reversed range, or a
+            seed listed twice.
+    """
+    seeds: list[int] = []
+    for part in str(text).split(","):
+        part = part.strip()
+        try:
+            if "-" in part:
+                low_text, high_text = part.split("-", 1)
+                low, high = int(low_text), int(high_text)
+                if low > high:
+                    raise SeedsError(f"seed range {part!r} is reversed")
+                seeds.extend(range(low, high + 1))
+            else:
+                seeds.append(int(part))
+        except ValueError as err:
+            if isinstance(err, SeedsError):
+                raise
+            raise SeedsError(
+                f"bad seeds {text!r}: {part!r} is not a seed or range (use 0-9, 0,3,5 or 7)"
+            ) from err
+    if any(s < 0 for s in seeds):
+        raise SeedsError(f"seeds must be >= 0, got {text!r}")
+    duplicates = sorted({s for s in seeds if seeds.count(s) > 1})
+    if duplicates:
+        raise SeedsError(f"seeds listed twice in {text!r}: {duplicates}")
+    return seeds
+
+
+def _seeds_argument(text: str) -> list[int]:
+    try:
+        return parse_seeds(text)
+    except SeedsError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
+
+
+def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``evaluate`` subcommand (its handler is :func:`cmd_evaluate`)."""
+    parser = subparsers.add_parser(
+        "evaluate",
+        help="run the SLAM on a world's route and write metrics and figures",
+        description="Drive the world's route in the simulator with the SLAM filter in the "
+        "loop, for each seed; write DIR/metrics.json, figures (trajectories, landmark map, "
+        "pose NEES) and TUM trajectories, and print a summary table.",
+    )
+    parser.add_argument("--world", required=True, help="shipped world name or path to a .toml")
+    parser.add_argument(
+        "--seeds",
+        type=_seeds_argument,
+        default=[0],
+        help="seeds: a range 0-9, a list 0,3,5 or one seed 7 (default 0)",
+    )
+    parser.add_argument(
+        "--preset",
+        choices=("default", "thesis"),
+        default="default",
+        help="estimator configuration (default %(default)s)",
+    )
+    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument(
+        "--max-steps", type=int, default=None, help="step budget per seed (default: whole route)"
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=cmd_evaluate)
+    return parser
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Run ``vslam-gym evaluate``; print the summary table; return the exit status."""
+    start = time.perf_counter()
+    metrics = evaluate(
+        args.world,
+        args.seeds,
+        args.preset,
+        args.out,
+        progress=not args.no_progress,
+        max_steps=args.max_steps,
+        print_table=False,
+    )
+    print(format_table(metrics))
+    print(
+        f"wall time {time.perf_counter() - start:.1f} s on {metrics['machine']}; "
+        f"wrote {Path(args.out) / 'metrics.json'} and figures"
+    )
+    return 0
