@@ -44,6 +44,15 @@ from vslam_gym.slam.landmark import LandmarkModel, ModelFit, conditional_on_pose
 from vslam_gym.slam.likelihood import object_loglik, range_error_distribution
 from vslam_gym.slam.scan import Scan
 
+_GROUPING_BATCH = 16
+"""Trial group ends tested together by :func:`initial_grouping` at first (a speed knob)."""
+
+
+_PRECOMPUTED_JOINS_MAX_GROUPS = 12
+"""With the closed-form first order, :func:`select_model` scores every line that joining
+up to this many initial groups can produce in one batch (``g (g + 1) / 2`` lines) rather
+than a few after each join (a speed knob; the result is the same)."""
+
 
 class DegenerateSegmentError(ValueError):
     """A segment cannot be modelled (too few points, no-return beams, parallel lines)."""
@@ -112,6 +121,34 @@ def _principal_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return p0, 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
 
 
+class _SpanFits:
+    """Total-least-squares lines of many inclusive index spans of one point array, batched.
+
+    The spans are padded to a common width: ``idx`` ``(m, W)`` indexes the points (padding
+    repeats a valid index), ``w`` ``(m, W)`` is 1 on a span's own points and 0 on the
+    padding. Per span: the centroid ``p0`` ``(m, 2)``, the masked deviations ``ex, ey``
+    ``(m, W)`` from it, the scatter sums ``sxx, syy, sxy`` ``(m,)`` and the angle ``psi``
+    ``(m,)`` of the principal axis in ``(-pi/2, pi/2]`` (:func:`_principal_axis`).
+    """
+
+    def __init__(self, points: np.ndarray, spans: list[tuple[int, int]]) -> None:
+        spans_arr = np.asarray(spans, dtype=int).reshape(-1, 2)
+        self.lengths = spans_arr[:, 1] - spans_arr[:, 0] + 1
+        width = int(self.lengths.max())
+        cols = np.arange(width)
+        self.mask = cols < self.lengths[:, None]
+        self.idx = np.minimum(spans_arr[:, :1] + cols, points.shape[0] - 1)
+        self.w = self.mask.astype(float)
+        self.cnt = self.lengths.astype(float)
+        pts = points[self.idx]
+        self.p0 = (self.w[..., None] * pts).sum(axis=1) / self.cnt[:, None]
+        e = (pts - self.p0[:, None, :]) * self.w[..., None]
+        self.ex, self.ey = e[..., 0], e[..., 1]
+        ex, ey = self.ex, self.ey
+        self.sxx, self.syy, self.sxy = (ex * ex).sum(1), (ey * ey).sum(1), (ex * ey).sum(1)
+        self.psi = 0.5 * np.arctan2(2.0 * self.sxy, self.sxx - self.syy)
+
+
 class _FirstOrderLines:
     """Closed-form first-order log-likelihoods of beams on fitted lines (hot path).
 
@@ -126,7 +163,7 @@ class _FirstOrderLines:
 
     def __init__(self, modeller: _SegmentModeller, point_cov: np.ndarray) -> None:
         pose = modeller.pose
-        self.pts = _points(modeller.z, pose)
+        self.pts = modeller.points
         self.cov = point_cov
         self.ranges = modeller.z[0::2]
         angle = pose[2] + modeller.z[1::2]
@@ -137,20 +174,9 @@ class _FirstOrderLines:
 
     def loglik(self, spans: list[tuple[int, int]]) -> list[np.ndarray]:
         """Per-beam log-likelihoods for each inclusive local span ``(a, b)``."""
-        spans_arr = np.asarray(spans, dtype=int)
-        lengths = spans_arr[:, 1] - spans_arr[:, 0] + 1
-        width = int(lengths.max())
-        idx = spans_arr[:, :1] + np.arange(width)
-        mask = np.arange(width) < lengths[:, None]
-        idx = np.minimum(idx, self.pts.shape[0] - 1)
-        w = mask.astype(float)
-        cnt = lengths.astype(float)
-        pts = self.pts[idx]
-        p0 = (w[..., None] * pts).sum(axis=1) / cnt[:, None]
-        e = (pts - p0[:, None, :]) * w[..., None]
-        ex, ey = e[..., 0], e[..., 1]
-        sxx, syy, sxy = (ex * ex).sum(1), (ey * ey).sum(1), (ex * ey).sum(1)
-        psi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+        fit = _SpanFits(self.pts, spans)
+        lengths, idx, w, cnt, p0 = fit.lengths, fit.idx, fit.w, fit.cnt, fit.p0
+        ex, ey, sxx, syy, sxy, psi = fit.ex, fit.ey, fit.sxx, fit.syy, fit.sxy, fit.psi
         gap = np.sqrt((sxx - syy) ** 2 + 4.0 * sxy**2)
         dx, dy = np.cos(psi)[:, None], np.sin(psi)[:, None]  # direction; normal (-dy, dx)
         de = ex * dx + ey * dy
@@ -229,6 +255,10 @@ def initial_grouping(
 ) -> list[tuple[int, int]]:
     """Algorithm 3: initial groups of consecutive measurements.
 
+    A group ``a..b`` grows while every point's perpendicular distance to the line fitted
+    to ``a..b`` is within ``grouping_mahalanobis`` standard deviations; when point ``b``
+    breaks that, the group ends at ``b - 1`` and the next starts there.
+
     Args:
         mu_c: ``(n, 2)`` Cartesian measurement means [m].
         cov_c: ``(n, 2, 2)`` their covariances [m^2].
@@ -238,7 +268,9 @@ def initial_grouping(
     """
     n = mu_c.shape[0]
     start = config.min_group_size - 1
-    # Prefix sums make each trial line fit O(1); the distance test stays vectorised.
+    # Prefix sums make each trial line fit O(1). For one group start ``a`` the trial ends
+    # ``b`` are tested in vectorised batches (each batch twice as long as the one before)
+    # instead of one at a time.
     x, y = mu_c[:, 0], mu_c[:, 1]
     cs = np.zeros((6, n + 1))
     np.cumsum([np.ones(n), x, y, x * x, y * y, x * y], axis=1, out=cs[:, 1:])
@@ -246,19 +278,28 @@ def initial_grouping(
     limit = config.grouping_mahalanobis**2
     groups: list[tuple[int, int]] = []
     a, b = 0, start
+    batch = _GROUPING_BATCH
     while b < n:
-        cnt, sx, sy, sxx, syy, sxy = cs[:, b + 1] - cs[:, a]
+        ends = np.arange(b, min(b + batch, n))
+        cnt, sx, sy, sxx, syy, sxy = cs[:, ends + 1] - cs[:, a, None]
         mx, my = sx / cnt, sy / cnt
         psi = 0.5 * np.arctan2(2.0 * (sxy - sx * my), (sxx - sx * mx) - (syy - sy * my))
-        nx, ny = -np.sin(psi), np.cos(psi)
-        mu_d = (x[a : b + 1] - mx) * nx + (y[a : b + 1] - my) * ny
-        var_d = nx * nx * cxx[a : b + 1] + 2.0 * nx * ny * cxy[a : b + 1] + ny * ny * cyy[a : b + 1]
-        if np.all(mu_d * mu_d <= limit * var_d):
-            b += 1
-        else:
-            groups.append((a, b - 1))
-            a = b - 1
-            b = a + start
+        nx, ny = -np.sin(psi)[:, None], np.cos(psi)[:, None]
+        # rows: trial ends b; columns: points a..ends[-1] (only those <= b count)
+        pts = slice(a, ends[-1] + 1)
+        mu_d = (x[pts] - mx[:, None]) * nx + (y[pts] - my[:, None]) * ny
+        var_d = nx * nx * cxx[pts] + 2.0 * nx * ny * cxy[pts] + ny * ny * cyy[pts]
+        outside = (mu_d * mu_d > limit * var_d) & (np.arange(a, ends[-1] + 1) <= ends[:, None])
+        failed = np.flatnonzero(outside.any(axis=1))
+        if failed.size == 0:
+            b = int(ends[-1]) + 1
+            batch *= 2
+            continue
+        b = int(ends[failed[0]])
+        groups.append((a, b - 1))
+        a = b - 1
+        b = a + start
+        batch = _GROUPING_BATCH
     groups.append((a, n - 1))
     return groups
 
@@ -296,6 +337,7 @@ class _SegmentModeller:
         self.pose = np.asarray(pose, dtype=float)
         self.sensor, self.config, self.lin = sensor, config, lin
         self.z, self.cov = stacked_measurements(scan, first, last, sensor)
+        self.points = _points(self.z, self.pose)  # (n, 2) world-frame points [m]
         self.n = last - first + 1
         self.point_cov = np.zeros((self.n, 2, 2))
         self.fast: _FirstOrderLines | None = None
@@ -373,7 +415,12 @@ def select_model(
             cache[(line.a, line.b)] = line
 
     pairs = [(groups[j][0], groups[j + 1][1]) for j in range(len(groups) - 1)]
-    evaluate(list(groups) + pairs)
+    if modeller.fast is not None and len(groups) <= _PRECOMPUTED_JOINS_MAX_GROUPS:
+        # Closed form: every line the joins can produce, in one batch.
+        g = len(groups)
+        evaluate([(groups[i][0], groups[j][1]) for i in range(g) for j in range(i, g)])
+    else:
+        evaluate(list(groups) + pairs)
     lines = [cache[g] for g in groups]
     bic = np.full(len(lines), -np.inf)
     best_groups = {len(lines): [(ln.a, ln.b) for ln in lines]}
@@ -476,14 +523,16 @@ def fit_slices(
 
 def _parallel_pairs(modeller: _SegmentModeller, groups: list[tuple[int, int]]) -> np.ndarray:
     """Sine of the angle between each pair of adjacent lines (end lines included)."""
-    pts = _points(modeller.z, modeller.pose)
-    dirs = [pts[0] - modeller.pose[:2]]
-    for a, b in groups:
-        dirs.append(_oriented_line(pts[a : b + 1])[1])
-    dirs.append(pts[-1] - modeller.pose[:2])
-    d = np.array(dirs)
+    pts = modeller.points
+    fit = _SpanFits(pts, groups)
+    d = np.stack([np.cos(fit.psi), np.sin(fit.psi)], axis=-1)
+    # Oriented from each group's first towards its last point (as _oriented_line).
+    ends = np.asarray(groups, dtype=int).reshape(-1, 2)
+    span = pts[ends[:, 1]] - pts[ends[:, 0]]
+    d = d * np.where(np.sum(d * span, axis=-1) < 0.0, -1.0, 1.0)[:, None]
+    d = np.vstack([pts[0] - modeller.pose[:2], d, pts[-1] - modeller.pose[:2]])
     cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
-    norms = np.linalg.norm(d[:-1], axis=1) * np.linalg.norm(d[1:], axis=1)
+    norms = np.hypot(d[:-1, 0], d[:-1, 1]) * np.hypot(d[1:, 0], d[1:, 1])
     with np.errstate(divide="ignore", invalid="ignore"):  # a zero-length line: sine 0
         return np.where(norms > 0, np.abs(cross) / np.where(norms > 0, norms, 1.0), 0.0)
 
@@ -547,71 +596,65 @@ def _first_order_vertices(
     :func:`coarseness_variances`); an end line is the first or last beam's ray, so it
     turns with that beam's bearing only. A vertex solves ``M v = c`` for its two lines,
     so ``dv = M^-1 (dc - dM v)``: ``dv/drho_A = M^-1 e_A`` and
-    ``dv/dpsi_A = M^-1 e_A * d_A . (v - p_A)`` for rotation about ``p_A``.
+    ``dv/dpsi_A = M^-1 e_A * d_A . (v - p_A)`` for rotation about ``p_A``. Batched over
+    the lines and the vertices.
 
     Returns:
         ``(m + 1, 2)`` vertex means [m] and their ``(2m + 2, 2m + 2)`` covariance.
     """
     pose, n = modeller.pose, modeller.n
-    pts = _points(modeller.z, pose)
     m = len(slices)
     n_in = 2 * n + offset_var.size
-    # Line k = 0..m+1: k = 0 left end, 1..m object lines, m + 1 right end. Each line's
-    # Jacobian rows: d rho (1, n_in) and d psi (1, n_in); p (2,), direction d (2,).
-    lines_p, lines_d, j_rho, j_psi = [], [], [], []
-    angle0, angle1 = pose[2] + modeller.z[1], pose[2] + modeller.z[-1]
-    end_rows = {}
-    for key, angle, col in (("left", angle0, 1), ("right", angle1, 2 * n - 1)):
-        row_psi = np.zeros(n_in)
-        row_psi[col] = 1.0
-        end_rows[key] = (np.array([np.cos(angle), np.sin(angle)]), row_psi)
-    d_left, psi_left = end_rows["left"]
-    lines_p.append(pose[:2])
-    lines_d.append(d_left)
-    j_rho.append(np.zeros(n_in))
-    j_psi.append(psi_left)
-    r, a = modeller.z[0::2], pose[2] + modeller.z[1::2]
-    # d z_k / d (r_k, phi_k)
-    jp = np.array([[np.cos(a), -r * np.sin(a)], [np.sin(a), r * np.cos(a)]])  # (2, 2, n)
-    for j, (lo, hi) in enumerate(slices):
-        seg = pts[lo : hi + 1]
-        p0, psi = _principal_axis(seg)
-        d = np.array([np.cos(psi), np.sin(psi)])
-        nrm = np.array([-d[1], d[0]])
-        e = seg - p0
-        gap = np.hypot(*(np.array([e[:, 0] @ e[:, 0] - e[:, 1] @ e[:, 1], 2 * e[:, 0] @ e[:, 1]])))
-        g = (np.outer(e @ d, nrm) + np.outer(e @ nrm, d)) / gap  # (n_j, 2) d psi / d z_k
-        k = np.arange(lo, hi + 1)
-        # chain through polar: d/d(r, phi) = (d/dz) @ jp
-        rho_pol = np.einsum("i,ijk->kj", nrm / len(k), jp[:, :, k])
-        psi_pol = np.einsum("ki,ijk->kj", g, jp[:, :, k])
-        row_rho, row_psi = np.zeros(n_in), np.zeros(n_in)
-        row_rho[2 * lo : 2 * hi + 2] = rho_pol.reshape(-1)
-        row_psi[2 * lo : 2 * hi + 2] = psi_pol.reshape(-1)
-        if offset_var.size:
-            row_rho[2 * n + j] = 1.0
-        lines_p.append(p0)
-        lines_d.append(d)
-        j_rho.append(row_rho)
-        j_psi.append(row_psi)
-    d_right, psi_right = end_rows["right"]
-    lines_p.append(pose[:2])
-    lines_d.append(d_right)
-    j_rho.append(np.zeros(n_in))
-    j_psi.append(psi_right)
+    fit = _SpanFits(modeller.points, slices)
+    # Lines k = 0..m+1: k = 0 left end, 1..m object lines, m + 1 right end. Each line's
+    # Jacobian rows: d rho (n_in,) and d psi (n_in,); a point p (2,) and direction d (2,).
+    j_rho = np.zeros((m + 2, n_in))
+    j_psi = np.zeros((m + 2, n_in))
+    lines_p = np.empty((m + 2, 2))
+    lines_d = np.empty((m + 2, 2))
+    lines_p[[0, -1]] = pose[:2]
+    end_angles = pose[2] + modeller.z[[1, -1]]
+    lines_d[[0, -1]] = np.stack([np.cos(end_angles), np.sin(end_angles)], axis=-1)
+    j_psi[0, 1] = 1.0  # the left end line turns with the first beam's bearing
+    j_psi[-1, 2 * n - 1] = 1.0  # the right one with the last beam's
 
-    mu = np.empty((m + 1, 2))
-    jac = np.zeros((2 * (m + 1), n_in))
-    for i in range(m + 1):
-        pa, da, pb, db = lines_p[i], lines_d[i], lines_p[i + 1], lines_d[i + 1]
-        mat = np.array([[-da[1], da[0]], [-db[1], db[0]]])
-        c = np.array([mat[0] @ pa, mat[1] @ pb])
-        v = np.linalg.solve(mat, c)
-        inv = np.linalg.inv(mat)
-        mu[i] = v
-        jac[2 * i : 2 * i + 2] = np.outer(
-            inv[:, 0], j_rho[i] + (da @ (v - pa)) * j_psi[i]
-        ) + np.outer(inv[:, 1], j_rho[i + 1] + (db @ (v - pb)) * j_psi[i + 1])
+    # The line geometry per line as in _principal_axis (the vertex means then agree to the
+    # last bit with a line-by-line evaluation; downstream ICP is sensitive to that).
+    for k, (lo, hi) in enumerate(slices, start=1):
+        p0, psi = _principal_axis(modeller.points[lo : hi + 1])
+        lines_p[k] = p0
+        lines_d[k] = np.cos(psi), np.sin(psi)
+    dx, dy = lines_d[1:-1, 0, None], lines_d[1:-1, 1, None]  # normal (-dy, dx)
+    gap = np.hypot(fit.sxx - fit.syy, 2.0 * fit.sxy)[:, None]
+    de = fit.ex * dx + fit.ey * dy
+    ne = fit.ey * dx - fit.ex * dy
+    gx = (de * -dy + ne * dx) / gap  # d psi / d z_k, (m, W)
+    gy = (de * dx + ne * dy) / gap
+    # Chain through polar: d z_k / d (r_k, phi_k) = [[cos a, -r sin a], [sin a, r cos a]].
+    r, angle = modeller.z[0::2][fit.idx], pose[2] + modeller.z[1::2][fit.idx]
+    c, s_ = np.cos(angle), np.sin(angle)
+    rho_r = (-dy * c + dx * s_) / fit.cnt[:, None]
+    rho_phi = (dy * s_ + dx * c) * r / fit.cnt[:, None]
+    psi_r = gx * c + gy * s_
+    psi_phi = (-gx * s_ + gy * c) * r
+    rows = np.broadcast_to(np.arange(1, m + 1)[:, None], fit.idx.shape)[fit.mask]
+    cols = 2 * fit.idx[fit.mask]
+    j_rho[rows, cols], j_rho[rows, cols + 1] = rho_r[fit.mask], rho_phi[fit.mask]
+    j_psi[rows, cols], j_psi[rows, cols + 1] = psi_r[fit.mask], psi_phi[fit.mask]
+    if offset_var.size:
+        j_rho[np.arange(1, m + 1), 2 * n + np.arange(m)] = 1.0
+
+    # Vertex i joins lines i (A) and i + 1 (B): solve [n_A; n_B] v = [n_A . p_A; n_B . p_B].
+    pa, da, pb, db = lines_p[:-1], lines_d[:-1], lines_p[1:], lines_d[1:]
+    normals = np.stack([-lines_d[:, 1], lines_d[:, 0]], axis=-1)
+    offsets = np.array([nrm @ p for nrm, p in zip(normals, lines_p, strict=True)])
+    mat = np.stack([normals[:-1], normals[1:]], axis=-2)  # (m + 1, 2, 2)
+    mu = np.linalg.solve(mat, np.stack([offsets[:-1], offsets[1:]], axis=-1)[..., None])[..., 0]
+    inv = np.linalg.inv(mat)
+    row_a = j_rho[:-1] + np.sum(da * (mu - pa), axis=1)[:, None] * j_psi[:-1]
+    row_b = j_rho[1:] + np.sum(db * (mu - pb), axis=1)[:, None] * j_psi[1:]
+    jac = inv[:, :, 0, None] * row_a[:, None, :] + inv[:, :, 1, None] * row_b[:, None, :]
+    jac = jac.reshape(2 * (m + 1), n_in)
     var_in = np.concatenate([np.diag(modeller.cov), offset_var])
     sigma = symmetrize((jac * var_in) @ jac.T)
     return mu, sigma
@@ -637,22 +680,17 @@ def coarseness_variances(
     Returns:
         ``(m,)`` variances, one per line.
     """
-    excess, dof, stat = [], [], []
-    for a, b in slices:
-        pts = points[a : b + 1]
-        if pts.shape[0] <= 2:
-            excess.append(0.0)
-            dof.append(0)
-            stat.append(0.0)
-            continue
-        p0, psi = _principal_axis(pts)
-        normal = np.array([-np.sin(psi), np.cos(psi)])
-        d2 = ((pts - p0) @ normal) ** 2
-        var = np.einsum("i,nij,j->n", normal, point_cov[a : b + 1], normal)
-        excess.append(d2.sum() - (pts.shape[0] - 2) * var.mean())
-        dof.append(pts.shape[0] - 2)
-        stat.append(float(np.sum(d2 / var)))
-    excess, dof, stat = np.array(excess), np.array(dof), np.array(stat)
+    fit = _SpanFits(points, slices)
+    nx, ny = -np.sin(fit.psi)[:, None], np.cos(fit.psi)[:, None]
+    d2 = (fit.ex * nx + fit.ey * ny) ** 2  # 0 on the padding
+    cov = point_cov[fit.idx]
+    var = nx * nx * cov[..., 0, 0] + 2.0 * nx * ny * cov[..., 0, 1] + ny * ny * cov[..., 1, 1]
+    var = np.where(fit.mask, var, 1.0)  # padding: any positive value (its d2 is 0)
+    dof = np.maximum(fit.lengths - 2, 0)
+    # A line through at most two points has no residual degrees of freedom: no evidence.
+    has_dof = dof > 0
+    excess = np.where(has_dof, d2.sum(1) - dof * (var * fit.w).sum(1) / fit.cnt, 0.0)
+    stat = np.where(has_dof, (d2 / var).sum(1), 0.0)
     # Only residuals that the noise cannot explain (chi-square test) count as model error.
     significant = stat > chdtri(np.maximum(dof, 1), 1.0 - significance)
     per_line = np.where(significant, np.maximum(excess, 0.0) / np.maximum(dof, 1), 0.0)

@@ -62,7 +62,7 @@ from vslam_gym.slam.likelihood import (
     detection_statistics,
     expected_range,
     exponential_rate,
-    generalized_mahalanobis_sq,
+    generalized_mahalanobis_sq_unchecked,
     line_loglik,
     object_loglik,
     range_error_distribution,
@@ -101,7 +101,7 @@ class BeamAssociation:
             thesis 3.2.43 [log 1/m] (``-inf`` where ``mu_err`` is ``nan``).
         u: ``(n,)`` unknown probability of the assigned line.
         d2: ``(n,)`` squared generalised Mahalanobis distance ``d_GM^2`` (``inf`` where
-            ``mu_err`` is ``nan``).
+            ``mu_err`` is ``nan``; all ``nan`` when computed with ``distances=False``).
     """
 
     line: np.ndarray
@@ -415,7 +415,12 @@ def _generalized_mahalanobis_sq(
     d2[obj] = mu[obj] ** 2 / var[obj]
     mixed = ok & ~obj
     if np.any(mixed):
-        d2[mixed] = generalized_mahalanobis_sq(mu[mixed], var[mixed], u[mixed], lam, bracket_sigma)
+        if not bracket_sigma > 0.0:
+            raise ValueError(f"gm_mode_bracket_sigma must be > 0, got {bracket_sigma!r}")
+        # The caller validated every input (finite errors of positive variance here).
+        d2[mixed] = generalized_mahalanobis_sq_unchecked(
+            mu[mixed], var[mixed], u[mixed], np.full(int(mixed.sum()), lam), bracket_sigma
+        )
     return d2
 
 
@@ -429,6 +434,8 @@ def beam_line_correspondence(
     config: ModelConfig,
     linearization: Linearization,
     lam: float,
+    *,
+    distances: bool = True,
 ) -> BeamAssociation:
     """Assign each beam of ``first..last`` to a model line and score it (SPEC 8 items 1-3).
 
@@ -457,6 +464,9 @@ def beam_line_correspondence(
         linearization: how Gaussians are propagated (vertex bearings and range errors).
         lam: rate [1/m] of the unknown-line range density, > 0 (usually
             :func:`~vslam_gym.slam.likelihood.exponential_rate` of the scan).
+        distances: compute ``d_GM^2`` (the mode search of the unknown-line densities);
+            when False, ``d2`` is all ``nan`` (for callers that use the assignment only,
+            e.g. a model update).
 
     Returns:
         The per-beam association (see :class:`BeamAssociation`).
@@ -547,7 +557,12 @@ def beam_line_correspondence(
     chosen_var = var_err[rows, line]
     chosen_ll = loglik[rows, line]
     u = model.u[line].copy()
-    d2 = _generalized_mahalanobis_sq(chosen_mu, chosen_var, u, lam, config.gm_mode_bracket_sigma)
+    if distances:
+        d2 = _generalized_mahalanobis_sq(
+            chosen_mu, chosen_var, u, lam, config.gm_mode_bracket_sigma
+        )
+    else:
+        d2 = np.full(n, np.nan)
     return BeamAssociation(
         line=line,
         gated=gated,

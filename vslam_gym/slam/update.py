@@ -62,6 +62,7 @@ Departures from the thesis (all documented where they happen):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -428,7 +429,7 @@ def _association_lines(
     if association is None:
         lam = exponential_rate(scan.ranges, scan.max_range)
         association = beam_line_correspondence(
-            model, scan, first, last, pose, sensor, config, lin, lam
+            model, scan, first, last, pose, sensor, config, lin, lam, distances=False
         )
     if isinstance(association, Detection):
         association = association.association
@@ -1253,17 +1254,42 @@ def _prior_chain(model: LandmarkModel, chains: ChainContext, side: str) -> _Chai
 
 
 def _segment_params(p, q, c, d) -> tuple[float, float] | None:
-    """``(s, t)`` with ``p + s (q - p) = c + t (d - c)``; None when parallel."""
-    r = q - p
-    w = d - c
-    den = r[0] * w[1] - r[1] * w[0]
-    scale = np.hypot(*r) * np.hypot(*w)
+    """``(s, t)`` with ``p + s (q - p) = c + t (d - c)``; None when parallel.
+
+    Points are any 2-sequences; the arithmetic is done on Python floats (the hot loops of
+    Algorithm 7 call this on single segments).
+    """
+    px, py = float(p[0]), float(p[1])
+    rx, ry = float(q[0]) - px, float(q[1]) - py
+    cx, cy = float(c[0]), float(c[1])
+    wx, wy = float(d[0]) - cx, float(d[1]) - cy
+    den = rx * wy - ry * wx
+    scale = math.hypot(rx, ry) * math.hypot(wx, wy)
     if scale == 0.0 or abs(den) <= _SEGMENT_EPS * scale:
         return None
+    gx, gy = cx - px, cy - py
+    return (gx * wy - gy * wx) / den, (gx * ry - gy * rx) / den
+
+
+def _segments_params(
+    p: np.ndarray, q: np.ndarray, c: np.ndarray, d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_segment_params` batched over ``(..., 2)`` arrays (same arithmetic).
+
+    Returns:
+        ``(ok, s, t)``: where the segments are not parallel, and their parameters there
+        (``nan`` elsewhere).
+    """
+    r = q - p
+    w = d - c
+    den = r[..., 0] * w[..., 1] - r[..., 1] * w[..., 0]
+    scale = np.hypot(r[..., 0], r[..., 1]) * np.hypot(w[..., 0], w[..., 1])
+    ok = (scale != 0.0) & (np.abs(den) > _SEGMENT_EPS * scale)
     g = c - p
-    s = (g[0] * w[1] - g[1] * w[0]) / den
-    t = (g[0] * r[1] - g[1] * r[0]) / den
-    return float(s), float(t)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(ok, (g[..., 0] * w[..., 1] - g[..., 1] * w[..., 0]) / den, np.nan)
+        t = np.where(ok, (g[..., 0] * r[..., 1] - g[..., 1] * r[..., 0]) / den, np.nan)
+    return ok, s, t
 
 
 def _intersection(endpoints: list[tuple[np.ndarray, np.ndarray]], lin: Linearization):
@@ -1273,7 +1299,9 @@ def _intersection(endpoints: list[tuple[np.ndarray, np.ndarray]], lin: Lineariza
     vertices are independent by convention, 3.2.35; notes 4.8).
     """
     mu = np.concatenate([m for m, _ in endpoints])
-    cov = scipy.linalg.block_diag(*[c for _, c in endpoints])
+    cov = np.zeros((2 * len(endpoints), 2 * len(endpoints)))
+    for i, (_, c) in enumerate(endpoints):
+        cov[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = c
 
     def f(x: np.ndarray) -> np.ndarray:
         p, q, c, d = x[..., 0:2], x[..., 2:4], x[..., 4:6], x[..., 6:8]
@@ -1300,8 +1328,9 @@ def _walk(chosen: _Chain, other: _Chain, lin: Linearization) -> _Chain:
         guard -= 1
         target = a.mean[na - 1]
         hit = None
+        other = b.mean.tolist()
         for j in range(nb, 0, -1):
-            params = _segment_params(cur, target, b.mean[j], b.mean[j - 1])
+            params = _segment_params(cur, target, other[j], other[j - 1])
             if params is None:
                 continue
             s, t = params
@@ -1386,19 +1415,18 @@ def _chain_crossing(left: _Chain, right: _Chain) -> tuple[int, int, float, float
     seg_l = np.linalg.norm(np.diff(left.mean, axis=0), axis=1)
     seg_r = np.linalg.norm(np.diff(right.mean, axis=0), axis=1)
     best = None
-    for i in range(nl - 1):
-        for j in range(nr - 1):
-            params = _segment_params(
-                left.mean[i], left.mean[i + 1], right.mean[j], right.mean[j + 1]
-            )
-            if params is None:
-                continue
-            s, t = params
-            if not (_SEGMENT_EPS < s < 1 - _SEGMENT_EPS and _SEGMENT_EPS < t < 1 - _SEGMENT_EPS):
-                continue
-            arc = seg_l[i + 1 :].sum() + (1 - s) * seg_l[i] + seg_r[:j].sum() + t * seg_r[j]
-            if best is None or arc < best[0]:
-                best = (arc, i, j, s, t)
+    # All segment pairs at once; the (few) crossings are then ranked in (i, j) order.
+    ok, s_all, t_all = _segments_params(
+        left.mean[:-1, None], left.mean[1:, None], right.mean[None, :-1], right.mean[None, 1:]
+    )
+    inside = (s_all > _SEGMENT_EPS) & (s_all < 1 - _SEGMENT_EPS)
+    inside &= (t_all > _SEGMENT_EPS) & (t_all < 1 - _SEGMENT_EPS)
+    for i, j in zip(*np.nonzero(ok & inside), strict=True):
+        i, j = int(i), int(j)
+        s, t = float(s_all[i, j]), float(t_all[i, j])
+        arc = seg_l[i + 1 :].sum() + (1 - s) * seg_l[i] + seg_r[:j].sum() + t * seg_r[j]
+        if best is None or arc < best[0]:
+            best = (arc, i, j, s, t)
     return None if best is None else best[1:]
 
 
