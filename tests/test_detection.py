@@ -31,7 +31,9 @@ SENSOR = SensorConfig()
 PHI = bearings_deg()
 P0 = np.array([0.0, 0.0, np.pi / 2])
 DEFAULT = ModelConfig()
-THESIS_THRESHOLDS = ModelConfig(detection_gate_sigma=3.0, detection_var_max=3.0)
+THESIS_THRESHOLDS = ModelConfig(
+    detection_gate_sigma=3.0, detection_var_max=3.0, detection_trim_fraction=0.0
+)
 PROPOSED = ModelConfig(detection_gate_sigma=4.0, detection_var_max=6.0)
 TRIALS = 100
 
@@ -293,7 +295,9 @@ def test_beam_parallel_to_its_line_has_no_range_error():
     assert np.all(np.isnan(a.mu_err[parallel])) and np.all(a.d2[parallel] == np.inf)
     assert np.all(a.loglik[parallel] == -np.inf) and np.all(a.line == 0)
     assert np.all(np.isfinite(a.d2[~parallel]))
-    assert d.mean_d2 == np.inf and not d.accepted
+    assert not d.accepted
+    untrimmed = detect(model, scan, first, scan.n - 1, P0, SENSOR, THESIS_THRESHOLDS)
+    assert untrimmed.mean_d2 == np.inf
 
 
 # ------------------------------------------------------------------ closed polygons
@@ -393,9 +397,12 @@ def test_scores_are_the_likelihood_modules(trials):
             )
             assert np.all(a.d2[~ok] == np.inf) and np.all(a.loglik[~ok] == -np.inf)
             assert d.loglik == pytest.approx(np.sum(a.loglik))
-            if np.all(ok):
-                assert d.mean_d2 == pytest.approx(np.mean(a.d2))
-                assert d.var_d2 == pytest.approx(np.var(a.d2))
+            # the statistics leave out the largest floor(trim * n) values
+            k = int(np.floor(DEFAULT.detection_trim_fraction * a.d2.size))
+            kept = np.sort(a.d2)[: a.d2.size - k]
+            if np.all(np.isfinite(kept)):
+                assert d.mean_d2 == pytest.approx(np.mean(kept))
+                assert d.var_d2 == pytest.approx(np.var(kept))
             else:
                 assert d.mean_d2 == d.var_d2 == np.inf and not d.accepted
 

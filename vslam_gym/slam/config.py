@@ -109,6 +109,10 @@ class ModelConfig:
             consistent set ``d_GM^2`` is chi-square with one degree of freedom, variance
             2, and its sample variance is heavy-tailed: its 95th percentile is 4.4 for
             30 beams).
+        detection_trim_fraction: the largest ``floor(this * n)`` of a set's ``n`` values
+            of ``d_GM^2`` are left out of the mean and variance (0 in the thesis): one
+            beam just past a model's end vertex makes the variance explode and the
+            landmark is modelled again.
         vertex_match_mahalanobis: an existing end vertex stays when its perpendicular
             Mahalanobis distance to the newly observed end line is at most this.
         wrap_mahalanobis: first and last object vertices are folded into one (closing
@@ -158,6 +162,7 @@ class ModelConfig:
     detection_gate_sigma: float = 4.0
     detection_mean_max: float = 3.0
     detection_var_max: float = 6.0
+    detection_trim_fraction: float = 0.05
     vertex_match_mahalanobis: float = 3.0
     wrap_mahalanobis: float = 3.0
     min_beams_per_line: int = 2
@@ -209,6 +214,7 @@ class ModelConfig:
             coarseness=0.0,
             detection_gate_sigma=3.0,
             detection_var_max=3.0,
+            detection_trim_fraction=0.0,
             end_vertex_correction=False,
         )
         base.update(overrides)

@@ -67,6 +67,7 @@ from vslam_gym.slam.likelihood import (
     object_loglik,
     range_error_distribution,
     range_error_jacobian,
+    trimmed,
 )
 from vslam_gym.slam.scan import Scan
 
@@ -619,7 +620,7 @@ def detect(
             raise ValueError(f"scan must be a Scan, got {type(scan).__name__}")
         lam = exponential_rate(scan.ranges, scan.max_range)
     assoc = beam_line_correspondence(model, scan, first, last, pose, sensor, config, lin, lam)
-    mean_d2, var_d2 = detection_statistics(assoc.d2)
+    mean_d2, var_d2 = detection_statistics(trimmed(assoc.d2, config.detection_trim_fraction))
     # The rule of likelihood.detection_accepts, on the statistics already computed.
     accepted = bool(mean_d2 <= config.detection_mean_max and var_d2 <= config.detection_var_max)
     return Detection(

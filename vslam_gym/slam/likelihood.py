@@ -715,6 +715,20 @@ def detection_statistics(d2: np.ndarray) -> tuple[float, float]:
     return float(np.mean(arr)), float(np.var(arr))
 
 
+def trimmed(d2: np.ndarray, fraction: float) -> np.ndarray:
+    """``d2`` without its ``floor(fraction * n)`` largest values (robust detection).
+
+    One beam just past a model's end vertex, or an outlier, can make the population
+    variance of the whole set explode; trimming a small fraction keeps the test on the
+    bulk of the beams.
+    """
+    arr = np.asarray(d2, dtype=float).ravel()
+    k = int(np.floor(fraction * arr.size))
+    if k <= 0:
+        return arr
+    return np.partition(arr, arr.size - k - 1)[: arr.size - k]
+
+
 def detection_accepts(d2: np.ndarray, config: ModelConfig) -> bool:
     """Whether a set of beams comes from the model (SPEC section 8 item 4, thesis 3.2.61).
 
