@@ -38,6 +38,7 @@ __all__ = [
     "range_error_distribution",
     "range_error_jacobian",
     "set_loglik",
+    "trimmed",
     "unknown_loglik",
 ]
 
