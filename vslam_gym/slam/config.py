@@ -263,6 +263,11 @@ class FilterConfig:
             ``tests/test_filter.py`` the overconfident pose covariance then rejects
             correct associations (28 landmarks for 4 objects instead of 7); it becomes a
             default once the pose covariance is consistent.
+        candidate_max_median_distance: a candidate landmark is aligned (ICP) and tested
+            only when the median distance [m] of the set's points, at the predicted
+            pose, to its nearest model lines is at most this; ``inf`` (the thesis)
+            tries every landmark near the reference. A speed measure: most candidates
+            of a cluttered scene are far from the set.
         new_landmark: how a new landmark enters the state: ``"thesis"`` (4.3.59-4.3.62:
             ``Phi2`` and ``Phi3`` both with ``K_v = Sigma_v^-1``, which counts the scan
             twice and informs the heading) or ``"augment"`` (exact augmentation of the
@@ -296,6 +301,7 @@ class FilterConfig:
     min_object_lines: int = 2
     min_beams_per_object_line: int = 2
     icp_max_pose_mahalanobis: float = float("inf")
+    candidate_max_median_distance: float = 1.5
     new_landmark: str = "thesis"
     shape_sigma: float = 1e-3
     unknown_chain_max_vertices: int = 4
@@ -312,7 +318,9 @@ class FilterConfig:
     @classmethod
     def thesis(cls, **overrides: Any) -> FilterConfig:
         """The thesis's filter: unknown chains are never pruned."""
-        base: dict[str, Any] = dict(unknown_chain_max_vertices=0)
+        base: dict[str, Any] = dict(
+            unknown_chain_max_vertices=0, candidate_max_median_distance=float("inf")
+        )
         base.update(overrides)
         return dataclass_from_dict(cls, base)
 

@@ -357,8 +357,12 @@ class VertexSLAM:
         log_norm = -0.5 * (3 * np.log(2 * np.pi)) - np.log(np.diag(chol)).sum()
         best, best_score = None, -np.inf
         tried = []
+        max_dist = self.config.filter.candidate_max_median_distance
         for i in cand:
             lm = self._landmarks[i]
+            if np.isfinite(max_dist) and _median_distance(pts, lm.model) > max_dist:
+                tried.append((lm.id, "far", np.nan, np.nan, False))
+                continue
             res = align(
                 pts, lm.model, pose, self.config.icp, self.sensor.max_range, self.sensor.half_fov
             )
@@ -601,6 +605,18 @@ class VertexSLAM:
         for lm in self._landmarks:
             lm.model = self._model_of(lm)
             lm.radius = object_radius(lm.model, self._mu[lm.ref : lm.ref + REF_DIM], thr)
+
+
+def _median_distance(points: np.ndarray, model: LandmarkModel) -> float:
+    """Median distance [m] of ``points`` ``(n, 2)`` to the model's nearest line segment."""
+    idx = model.line_vertices()
+    a = model.mean[idx[:, 0]]
+    ab = model.mean[idx[:, 1]] - a
+    length2 = np.maximum((ab * ab).sum(axis=1), 1e-12)
+    ap = points[:, None, :] - a[None, :, :]
+    t = np.clip((ap * ab).sum(axis=2) / length2, 0.0, 1.0)
+    d = ap - t[..., None] * ab
+    return float(np.median(np.sqrt((d * d).sum(axis=2)).min(axis=1)))
 
 
 def _pruned_u(
