@@ -56,7 +56,7 @@ from vslam_gym.slam.gaussian import (
     Linearization,
     make_linearization,
 )
-from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.geometry import check_pose, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.likelihood import (
     detection_statistics,
@@ -164,18 +164,6 @@ class VertexBearings:
 # ------------------------------------------------------------------------ validation
 
 
-def _check_pose(pose: object) -> np.ndarray:
-    try:
-        arr = np.array(pose, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"pose must be numeric [x, y, theta], got {pose!r}") from exc
-    if arr.shape != (3,):
-        raise ValueError(f"pose must have shape (3,) = [x, y, theta], got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"pose must be finite, got {arr}")
-    return arr
-
-
 def _check_index(name: str, value: object) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise ValueError(f"{name} must be an integer beam index, got {value!r}")
@@ -268,7 +256,7 @@ def vertex_polar_distribution(
             non-finite entries.
     """
     _check_model(model)
-    return _vertex_polar(model, _check_pose(pose), sensor, config, linearization)
+    return _vertex_polar(model, check_pose(pose), sensor, config, linearization)
 
 
 def _vertex_polar(
@@ -479,7 +467,7 @@ def beam_line_correspondence(
     """
     _check_model(model)
     first, last = _check_segment(scan, first, last)
-    pose = _check_pose(pose)
+    pose = check_pose(pose)
     lam = float(lam)
     if not (np.isfinite(lam) and lam > 0.0):
         raise ValueError(f"lam must be finite and > 0, got {lam!r}")

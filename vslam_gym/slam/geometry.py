@@ -24,6 +24,19 @@ def _scalar_or_array(value: np.ndarray) -> np.ndarray:
     return value[()] if np.ndim(value) == 0 else value
 
 
+def check_pose(pose: object) -> np.ndarray:
+    """``pose`` as a finite ``(3,)`` float array ``[x, y, theta]``, or a ``ValueError``."""
+    try:
+        arr = np.array(pose, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"pose must be numeric [x, y, theta], got {pose!r}") from exc
+    if arr.shape != (3,):
+        raise ValueError(f"pose must have shape (3,) = [x, y, theta], got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"pose must be finite, got {arr}")
+    return arr
+
+
 def wrap_angle(a: np.ndarray | float) -> np.ndarray:
     """Wrap angles [rad] into ``[-pi, pi)`` (``pi`` maps to ``-pi``); any shape."""
     a = np.asarray(a, dtype=float)

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.geometry import check_pose, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 
 __all__ = [
@@ -148,18 +148,6 @@ class IcpResult:
 # ------------------------------------------------------------------------ validation
 
 
-def _check_pose(pose: object) -> np.ndarray:
-    try:
-        arr = np.array(pose, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"pose must be numeric [x, y, theta], got {pose!r}") from exc
-    if arr.shape != (3,):
-        raise ValueError(f"pose must have shape (3,) = [x, y, theta], got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"pose must be finite, got {arr}")
-    return arr
-
-
 def _check_points(points: object) -> np.ndarray:
     try:
         arr = np.array(points, dtype=float)
@@ -261,7 +249,7 @@ def visible_lines(
         ValueError: malformed model, pose or limits.
     """
     model = _check_model(model)
-    pose = _check_pose(pose)
+    pose = check_pose(pose)
     _check_limits(max_range, half_fov)
     return _Lines(model).visible(pose, max_range, half_fov)
 
@@ -369,7 +357,7 @@ def align(
     config = config or IcpConfig()
     q = _check_points(points)
     model = _check_model(model)
-    pose0 = _check_pose(pose)
+    pose0 = check_pose(pose)
     _check_limits(max_range, half_fov)
 
     lines = _Lines(model)

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vslam_gym.slam.geometry import check_pose
 from vslam_gym.slam.landmark import LandmarkModel, ModelFit
 from vslam_gym.slam.scan import Scan
 
@@ -128,13 +129,6 @@ def _as_model(model: LandmarkModel | ModelFit) -> LandmarkModel:
     return model
 
 
-def _check_pose(pose: object) -> np.ndarray:
-    arr = np.asarray(pose, dtype=float)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"pose must be 3 finite numbers [x, y, theta], got {pose!r}")
-    return arr
-
-
 def scan_points(scan: Scan, pose: np.ndarray) -> np.ndarray:
     """World-frame points ``(m, 2)`` [m] of the beams of ``scan`` that have a return.
 
@@ -144,7 +138,7 @@ def scan_points(scan: Scan, pose: np.ndarray) -> np.ndarray:
     """
     if not isinstance(scan, Scan):
         raise ValueError(f"scan must be a Scan, got {type(scan).__name__}")
-    pose = _check_pose(pose)
+    pose = check_pose(pose)
     hit = scan.returns
     r = scan.ranges[hit]
     a = pose[2] + scan.bearings[hit]
@@ -211,7 +205,7 @@ def plot_model(
     if scan is not None and pose is None:
         raise ValueError("drawing a scan needs the lidar pose it was taken from (pose=...)")
     points = scan_points(scan, pose) if scan is not None else None
-    pose_arr = _check_pose(pose) if pose is not None else None
+    pose_arr = check_pose(pose) if pose is not None else None
     ellipses = [
         covariance_ellipse(model.mean[i], model.vertex_cov(i), n_sigma)
         for i in range(model.n_vertices)
