@@ -477,6 +477,10 @@ class VertexSLAM:
             )
         except (ValueError, np.linalg.LinAlgError):  # UpdateError, degenerate geometry, ...
             return False
+        try:
+            cond.covariance()  # p(v | r) must be proper before anything is committed
+        except np.linalg.LinAlgError:
+            return False
         self._mu, self._sigma = mu, sigma
         lm.cond = cond
         lm.u = upd.posterior.u.copy()
@@ -522,12 +526,15 @@ class VertexSLAM:
                 else:
                     means = ul.model.mean
                 cond = lm.cond.select(source, means, covs, r)
+                cond.covariance()  # raises unless positive definite: then nothing changes
                 lm.cond, lm.u, lm.object_vertices = cond, u, span
             if not lm.closed:
                 model = LandmarkModel(lm.cond.mean(r), lm.cond.covariance(), lm.u, lm.closed)
                 w = wrap_model(model, lm.object_vertices, self.config.model)
                 if w.wrapped:
-                    lm.cond = lm.cond.fold(w.keep, w.S)
+                    cond = lm.cond.fold(w.keep, w.S)
+                    cond.covariance()
+                    lm.cond = cond
                     lm.u, lm.closed = w.model.u.copy(), True
                     lm.object_vertices = (0, w.model.n_vertices)
         except (ValueError, np.linalg.LinAlgError):
@@ -580,6 +587,7 @@ class VertexSLAM:
                     select,
                     self.config.filter.shape_sigma,
                 )
+            cond.covariance()  # p(v | r) must be proper before anything is committed
         except (ValueError, np.linalg.LinAlgError):  # NotPositiveDefiniteError included
             return None
         self._mu, self._sigma = mu, sigma
