@@ -569,9 +569,11 @@ class VertexSLAM:
         for i in range(start, stop):  # r = mean of the object vertices (4.3.58)
             select[:, 2 * i : 2 * i + 2] = np.eye(2) / (stop - start)
         try:
-            if self.config.filter.new_landmark == "thesis":
+            if self.config.filter.new_landmark in ("thesis", "halved"):
                 mu_r = select @ model.mean.reshape(-1)
                 k_v = symmetrize(np.linalg.inv(model.cov))
+                if self.config.filter.new_landmark == "halved":
+                    k_v = 0.5 * k_v
                 a2 = np.tile(np.eye(2), (k, 1))
                 b2 = model.mean.reshape(-1) - a2 @ mu_r
                 mu, sigma, cond = state_space_update(
