@@ -54,7 +54,6 @@ from vslam_gym.slam.motion import (
 from vslam_gym.slam.scan import Scan
 from vslam_gym.slam.segmentation import segment_scan
 from vslam_gym.slam.state_update import (
-    POSE_DIM,
     REF_DIM,
     LandmarkConditional,
     augment_landmark,
@@ -655,7 +654,6 @@ def _object_span(u: np.ndarray, threshold: float) -> tuple[int, int]:
 __all__ = [
     "Belief",
     "LandmarkView",
-    "POSE_DIM",
     "SetDecision",
     "SlamConfig",
     "VertexSLAM",
