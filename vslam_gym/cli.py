@@ -240,10 +240,17 @@ def _add_evaluate(subparsers: argparse._SubParsersAction) -> None:
     add_evaluate_parser(subparsers)
 
 
+def _add_replay(subparsers: argparse._SubParsersAction) -> None:
+    from vslam_gym.replay import add_replay_parser
+
+    add_replay_parser(subparsers)
+
+
 SUBCOMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
     "run": _add_run,
     "worlds": _add_worlds,
     "evaluate": _add_evaluate,
+    "replay": _add_replay,
 }
 """Subcommand name -> function adding its parser (which sets ``handler``)."""
 

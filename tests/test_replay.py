@@ -1,0 +1,79 @@
+"""``vslam-gym replay``: the estimator on a recorded Carmen log."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vslam_gym.cli import main
+from vslam_gym.replay import replay
+
+RADISH = Path(
+    os.environ.get("VSLAM_GYM_RADISH", Path(__file__).resolve().parents[2] / "shared/data/radish")
+)
+INTEL = RADISH / "intel.log.gz"
+KEYS = {
+    "scans",
+    "completed",
+    "ate_rmse_m",
+    "odom_ate_rmse_m",
+    "final_error_m",
+    "heading_rmse_rad",
+    "landmarks",
+    "step_ms_median",
+    "step_ms_p95",
+}
+
+
+@pytest.mark.skipif(not INTEL.exists(), reason="the Intel log is not in the shared folder")
+def test_first_50_intel_scans_complete_and_beat_dead_reckoning(tmp_path):
+    assert (
+        main(
+            [
+                "replay",
+                str(INTEL),
+                "--odometry",
+                "logged",
+                "--max-scans",
+                "50",
+                "--out",
+                str(tmp_path),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert KEYS <= metrics.keys()
+    assert metrics["completed"] and metrics["scans"] == 50
+    assert np.isfinite(metrics["ate_rmse_m"])
+    assert metrics["ate_rmse_m"] < metrics["odom_ate_rmse_m"]
+    for name in ("trajectories.png", "map.png", "slam.tum", "true.tum", "odometry.tum"):
+        assert (tmp_path / name).stat().st_size > 0
+
+
+def test_replay_of_a_written_log_and_bad_mode(tmp_path):
+    """A straight corridor logged by hand: the replay runs and reports every key."""
+    lines = []
+    bearings = np.deg2rad(np.arange(-90, 90))  # Carmen order, right to left
+    for k in range(6):
+        x = 0.3 * k
+        # walls at y = +-2: range 2 / |sin(bearing)|, far ahead and behind clipped
+        r = np.minimum(2.0 / np.maximum(np.abs(np.sin(bearings)), 1e-3), 81.83)
+        lines.append(f"ODOM {x:.3f} 0 0 0 0 0 {k}.0 host {k}.0")
+        lines.append(
+            "FLASER 180 "
+            + " ".join(f"{v:.3f}" for v in r)
+            + f" {x:.3f} 0 0 {x:.3f} 0 0 {k}.5 host {k}.5"
+        )
+    path = tmp_path / "corridor.log"
+    path.write_text("\n".join(lines) + "\n")
+    result = replay(path, "synthetic", seed=1)
+    assert KEYS <= result["metrics"].keys()
+    assert result["metrics"]["completed"] and result["metrics"]["scans"] == 6
+    with pytest.raises(ValueError, match="odometry must be one of"):
+        replay(path, "wheel")

@@ -1,0 +1,248 @@
+"""Run the estimator on a recorded Carmen lidar log and measure it (``vslam-gym replay``).
+
+The log's corrected poses are the ground truth and only enter the metrics; the filter
+sees the odometry increments (the log's own wheel odometry, ``logged``, or Thrun's
+odometry model applied to the corrected poses with a seed, ``synthetic``) and the scans.
+
+    vslam-gym replay intel.log.gz --odometry synthetic --seed 0 --preset default --out DIR
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vslam_gym.evaluation import (
+    final_position_error,
+    heading_rmse,
+    position_ate_rmse,
+    timing_summary,
+    write_tum,
+)
+from vslam_gym.logs import (
+    CarmenConfig,
+    CarmenLog,
+    integrate_increments,
+    logged_increments,
+    read_carmen,
+    synthetic_increments,
+)
+from vslam_gym.slam.config import SensorConfig
+from vslam_gym.slam.filter import SlamConfig, VertexSLAM
+
+ODOMETRY_MODES = ("logged", "synthetic")
+"""Where the odometry increments come from."""
+DEFAULT_MAX_RANGE = 30.0
+"""Readings beyond this [m] are treated as no return (the thesis clipped its data so)."""
+DEFAULT_SIGMA_RANGE = 0.03
+"""Range noise [m] assumed for the logs' lidar (the thesis's value)."""
+DEFAULT_SIGMA_BEARING_DEG = 0.2
+"""Bearing noise [deg] assumed for the logs' lidar (the thesis's value)."""
+
+
+def sensor_for_log(log: CarmenLog, sigma_range: float, sigma_bearing_deg: float) -> SensorConfig:
+    """The estimator's sensor model for a log: FOV and resolution from its bearings."""
+    res = float(np.rad2deg(np.median(-np.diff(log.bearings))))
+    fov = float(np.rad2deg(log.bearings[0] - log.bearings[-1]))
+    half = max(abs(float(np.rad2deg(log.bearings[0]))), abs(float(np.rad2deg(log.bearings[-1]))))
+    return SensorConfig(
+        fov_deg=max(fov, 2.0 * half),
+        resolution_deg=res,
+        max_range=float(log.max_range),
+        sigma_range=sigma_range,
+        sigma_bearing_deg=sigma_bearing_deg,
+        lidar_offset=tuple(float(v) for v in log.lidar_offset),
+    )
+
+
+def replay(
+    path: str | Path,
+    odometry: str = "logged",
+    seed: int = 0,
+    preset: str = "default",
+    max_scans: int | None = None,
+    max_range: float = DEFAULT_MAX_RANGE,
+    sigma_range: float = DEFAULT_SIGMA_RANGE,
+    sigma_bearing_deg: float = DEFAULT_SIGMA_BEARING_DEG,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Feed a log to :class:`VertexSLAM` scan by scan; return the metrics and trajectories.
+
+    Returns:
+        A dict with ``metrics`` (``scans``, ``completed``, ``ate_rmse_m``,
+        ``odom_ate_rmse_m``, ``final_error_m``, ``heading_rmse_rad``, ``landmarks``,
+        ``step_ms_median``, ``step_ms_p95``, ``error`` when not completed) and the
+        ``true``, ``odometry`` and ``slam`` pose arrays ``(T, 3)``, ``times`` and the
+        final ``belief``.
+
+    Raises:
+        ValueError: unknown odometry mode, malformed log (``CarmenFormatError``).
+    """
+    if odometry not in ODOMETRY_MODES:
+        raise ValueError(f"odometry must be one of {ODOMETRY_MODES}, got {odometry!r}")
+    log = read_carmen(path, CarmenConfig(max_range=max_range))
+    n = log.num_scans if max_scans is None else min(log.num_scans, int(max_scans))
+    if odometry == "logged":
+        increments = logged_increments(log)[: n - 1]
+    else:
+        increments = synthetic_increments(log, seed)[: n - 1]
+    config = SlamConfig.preset(preset)
+    slam = VertexSLAM(
+        sensor_for_log(log, sigma_range, sigma_bearing_deg), config, initial_pose=log.poses[0]
+    )
+    slam_poses = [log.poses[0].copy()]
+    step_ms: list[float] = []
+    completed, error = True, ""
+    bar = _progress(n - 1, progress)
+    belief = slam.belief
+    for k in range(1, n):
+        try:
+            belief = slam.step(increments[k - 1], log.ranges[k], log.bearings)
+        except (ValueError, np.linalg.LinAlgError) as exc:  # report, do not hide
+            completed, error = False, f"scan {k}: {type(exc).__name__}: {exc}"
+            break
+        slam_poses.append(belief.robot_pose)
+        step_ms.append(belief.step_ms)
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    slam_arr = np.array(slam_poses)
+    true = log.poses[: slam_arr.shape[0]]
+    odo = integrate_increments(log.poses[0], increments)[: slam_arr.shape[0]]
+    finite = bool(np.all(np.isfinite(slam_arr)))
+    median_ms, p95_ms = timing_summary(np.array(step_ms))
+    metrics: dict[str, Any] = {
+        "log": str(path),
+        "odometry": odometry,
+        "seed": seed,
+        "preset": preset,
+        "scans": int(slam_arr.shape[0]),
+        "completed": completed and finite and slam_arr.shape[0] == n,
+        "ate_rmse_m": position_ate_rmse(slam_arr, true),
+        "odom_ate_rmse_m": position_ate_rmse(odo, true),
+        "final_error_m": final_position_error(slam_arr, true),
+        "heading_rmse_rad": heading_rmse(slam_arr, true),
+        "landmarks": len(belief.landmarks),
+        "step_ms_median": median_ms,
+        "step_ms_p95": p95_ms,
+    }
+    if error:
+        metrics["error"] = error
+    return {
+        "metrics": metrics,
+        "true": true,
+        "odometry": odo,
+        "slam": slam_arr,
+        "times": np.arange(slam_arr.shape[0], dtype=float),
+        "belief": belief,
+        "log": log,
+    }
+
+
+def _progress(total: int, enabled: bool) -> Any:
+    if not enabled:
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:  # the progress bar is optional
+        return None
+    return tqdm(total=total, unit="scan")
+
+
+def plot_replay(result: dict[str, Any], out: Path) -> None:
+    """Save the trajectories and the landmark map over all scans at the corrected poses."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vslam_gym.slam.plotting import plot_models
+
+    log: CarmenLog = result["log"]
+    fig, ax = plt.subplots(figsize=(8, 8))
+    ax.plot(*result["true"][:, :2].T, "k-", label="corrected (ground truth)")
+    ax.plot(*result["odometry"][:, :2].T, "--", color="tab:orange", label="odometry")
+    ax.plot(*result["slam"][:, :2].T, "-", color="tab:blue", label="SLAM")
+    ax.set_aspect("equal")
+    ax.legend(loc="best", fontsize="small")
+    ax.set_title(f"{Path(str(result['metrics']['log'])).name}: trajectories")
+    fig.savefig(out / "trajectories.png", dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(8, 8))
+    stride = max(1, log.num_scans // 300)
+    for k in range(0, result["true"].shape[0], stride):
+        hit = ~log.no_return[k]
+        a = result["true"][k, 2] + log.bearings[hit]
+        r = log.ranges[k, hit]
+        ax.plot(
+            result["true"][k, 0] + r * np.cos(a),
+            result["true"][k, 1] + r * np.sin(a),
+            ",",
+            color="0.6",
+        )
+    plot_models([lm.model for lm in result["belief"].landmarks], ax=ax)
+    ax.set_title("landmark map over the scans at the corrected poses")
+    fig.savefig(out / "map.png", dpi=120)
+    plt.close(fig)
+
+
+def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``vslam-gym replay`` to the command line."""
+    parser = subparsers.add_parser(
+        "replay",
+        help="run the SLAM on a Carmen lidar log and measure it",
+        description="Feed a Carmen log (.log or .log.gz) to the estimator scan by scan; write "
+        "DIR/metrics.json, trajectories and a landmark map, and TUM trajectories.",
+    )
+    parser.add_argument("log", help="path to the log")
+    parser.add_argument("--odometry", choices=ODOMETRY_MODES, default="logged")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic odometry")
+    parser.add_argument("--preset", choices=("default", "thesis"), default="default")
+    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument("--max-scans", type=int, default=None, help="replay only the first N")
+    parser.add_argument(
+        "--max-range",
+        type=float,
+        default=DEFAULT_MAX_RANGE,
+        help="readings beyond this [m] are no return (default %(default)s)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=cmd_replay)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Handler of ``vslam-gym replay``."""
+    start = time.perf_counter()
+    result = replay(
+        args.log,
+        args.odometry,
+        args.seed,
+        args.preset,
+        args.max_scans,
+        args.max_range,
+        progress=not args.no_progress,
+    )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    metrics = result["metrics"]
+    clean = {
+        k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in metrics.items()
+    }  # JSON has no NaN: null
+    (out / "metrics.json").write_text(json.dumps(clean, indent=2))
+    for name in ("true", "odometry", "slam"):
+        write_tum(out / f"{name}.tum", result["times"], result[name])
+    plot_replay(result, out)
+    print(
+        ", ".join(
+            f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}" for k, v in metrics.items()
+        )
+    )
+    print(f"wall time {time.perf_counter() - start:.1f} s; wrote {out}/metrics.json")
+    return 0
