@@ -16,7 +16,11 @@ from vslam_gym.sim.world_file import world_to_toml
 
 gym.register_envs(vslam_gym)
 
-ENV_IDS = sorted(env_id for env_id in gym.registry if env_id.startswith("VSlam/"))
+ENV_IDS = sorted(  # the simulator ids; the SLAM-wrapped ones are tested in test_slam_wrapper
+    env_id
+    for env_id, spec in gym.registry.items()
+    if env_id.startswith("VSlam/") and not spec.additional_wrappers
+)
 HAS_RANDOM_WORLDS = importlib.util.find_spec("vslam_gym.sim.random_world") is not None
 CASES = [pytest.param(env_id, {}, id=env_id) for env_id in ENV_IDS] + [
     pytest.param(

@@ -3,16 +3,49 @@
 Importing the package registers the environments (idempotently). Gymnasium 1.x does not
 load entry-point plugins, so write ``import vslam_gym; gym.register_envs(vslam_gym)`` or
 ``gym.make("vslam_gym:VSlam/LidarWorld-v0")``.
+
+Registered ids:
+
+- ``VSlam/LidarWorld-v0``: :class:`vslam_gym.env.LidarWorldEnv`, ground-truth simulator
+  (observations: scan and odometry).
+- ``VSlam/Explore-v0``: a new random world per reset, wrapped in
+  :class:`vslam_gym.slam_wrapper.SlamWrapper` (belief observations and rewards).
+- ``VSlam/ExploreSingleLandmark-v0``, ``VSlam/ExploreSmall-v0``,
+  ``VSlam/ExploreCurved-v0``, ``VSlam/ExploreHouse-v0``: the shipped worlds, wrapped.
 """
 
 from __future__ import annotations
 
-from gymnasium.envs.registration import register, registry
+from gymnasium.envs.registration import WrapperSpec, register, registry
 
 __version__ = "0.1.0"
 
 LIDAR_WORLD_ID = "VSlam/LidarWorld-v0"
 """Gymnasium id of :class:`vslam_gym.env.LidarWorldEnv`."""
+EXPLORE_ID = "VSlam/Explore-v0"
+"""Gymnasium id of the SLAM-wrapped environment on random worlds (new world per reset)."""
+EXPLORE_WORLD_IDS = {
+    "single_landmark": "VSlam/ExploreSingleLandmark-v0",
+    "small": "VSlam/ExploreSmall-v0",
+    "curved": "VSlam/ExploreCurved-v0",
+    "house": "VSlam/ExploreHouse-v0",
+}
+"""Gymnasium ids of the SLAM-wrapped environment on each shipped world."""
+EXPLORE_MAX_STEPS = {
+    "random": 500,
+    "single_landmark": 500,
+    "small": 500,
+    "curved": 800,
+    "house": 1000,
+}
+"""``max_episode_steps`` of the exploration ids (0.1 s per step)."""
+
+SLAM_WRAPPER_SPEC = WrapperSpec(
+    name="SlamWrapper",
+    entry_point="vslam_gym.slam_wrapper:SlamWrapper",
+    kwargs={"slam_config": "default", "reward": "default", "observation": None},
+)
+"""The wrapper every exploration id applies (so ``Monitor`` records the belief reward)."""
 
 
 def _register_envs() -> None:
@@ -24,6 +57,24 @@ def _register_envs() -> None:
             max_episode_steps=1000,
             kwargs={"world": "house"},
         )
+    worlds = {EXPLORE_ID: "random", **{v: k for k, v in EXPLORE_WORLD_IDS.items()}}
+    for env_id, world in worlds.items():
+        if env_id not in registry:
+            register(
+                id=env_id,
+                entry_point="vslam_gym.env:LidarWorldEnv",
+                max_episode_steps=EXPLORE_MAX_STEPS[world],
+                kwargs={"world": world, "terminate_on_collision": True},
+                additional_wrappers=(SLAM_WRAPPER_SPEC,),
+            )
+
+
+def __getattr__(name: str):  # lazy: importing the package stays light
+    if name == "SlamWrapper":
+        from vslam_gym.slam_wrapper import SlamWrapper
+
+        return SlamWrapper
+    raise AttributeError(f"module 'vslam_gym' has no attribute {name!r}")
 
 
 _register_envs()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -430,8 +430,15 @@ _COLORS = {
 }
 
 
-def _draw_frame(pygame: Any, canvas: Any, env: LidarWorldEnv) -> None:
-    """Draw one frame of ``env`` on the pygame surface ``canvas``."""
+def _draw_frame(
+    pygame: Any, canvas: Any, env: LidarWorldEnv
+) -> tuple[Callable[[float, float], tuple[int, int]], float]:
+    """Draw one frame of ``env`` on the pygame surface ``canvas``.
+
+    Returns:
+        The world-to-pixel map ``px(x, y)`` of the frame and its scale [px/m], for
+        overlays (the SLAM wrapper draws the belief with them).
+    """
     from vslam_gym.sim.shapes import obstacle_bounds
 
     world = env.world
@@ -484,3 +491,4 @@ def _draw_frame(pygame: Any, canvas: Any, env: LidarWorldEnv) -> None:
         pose[1] + world.robot.radius * math.sin(pose[2]),
     )
     pygame.draw.line(canvas, _COLORS["heading"], centre, px(*nose), 2)
+    return px, scale

@@ -197,9 +197,9 @@ def sensor_from_lidar(lidar: Any) -> SensorConfig:
     )
 
 
-def slam_config(preset: str, odometry_alphas: Sequence[float]) -> SlamConfig:
-    """``SlamConfig.preset(preset)`` with the robot's odometry-noise ``alphas``."""
-    base = SlamConfig.preset(preset)
+def slam_config(preset: str | SlamConfig, odometry_alphas: Sequence[float]) -> SlamConfig:
+    """A preset name (:meth:`SlamConfig.preset`) or config, with odometry ``alphas``."""
+    base = preset if isinstance(preset, SlamConfig) else SlamConfig.preset(preset)
     alphas = tuple(float(a) for a in odometry_alphas)
     return dataclasses.replace(
         base, filter=dataclasses.replace(base.filter, odometry_alphas=alphas)

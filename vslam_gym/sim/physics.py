@@ -156,35 +156,91 @@ class _DriveCommand:
         body.angular_velocity = self.omega
 
 
-def _cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+Point = tuple[float, float]
+
+
+def _cross(o: Point, a: Point, b: Point) -> float:
     """z-component of ``(a - o) x (b - o)``."""
-    return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 
 
-def _clean_ring(points: np.ndarray, tolerance: float) -> np.ndarray:
-    """Counter-clockwise vertex ring without repeated or collinear vertices."""
-    ring = np.asarray(points, dtype=float)
-    area2 = float(
-        np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1])
-    )
-    if area2 < 0.0:
-        ring = ring[::-1]
-    scale = float(np.max(np.ptp(ring, axis=0))) if len(ring) else 0.0
+def _clean_ring(points: object, tolerance: float) -> list[Point]:
+    """Counter-clockwise vertex ring without repeated or collinear vertices.
+
+    Vertex rings of obstacles are short, so plain Python floats are faster than numpy.
+    """
+    ring = [(x, y) for x, y in shapes.as_points(points).tolist()]
+    if shapes.shoelace_sum(ring) < 0.0:
+        ring.reverse()
+    if not ring:
+        return ring
+    xs, ys = [p[0] for p in ring], [p[1] for p in ring]
+    scale = max(max(xs) - min(xs), max(ys) - min(ys))
+    limit = tolerance * scale * scale
     changed = True
     while changed and len(ring) >= 3:
         changed = False
-        for i in range(len(ring)):
-            prev, cur, nxt = ring[i - 1], ring[i], ring[(i + 1) % len(ring)]
-            if abs(_cross(prev, cur, nxt)) <= tolerance * scale * scale:
-                ring = np.delete(ring, i, axis=0)
+        n = len(ring)
+        for i in range(n):
+            if abs(_cross(ring[i - 1], ring[i], ring[(i + 1) % n])) <= limit:
+                del ring[i]
                 changed = True
                 break
     return ring
 
 
-def _point_in_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> bool:
+def _point_in_triangle(p: Point, a: Point, b: Point, c: Point) -> bool:
     """``p`` inside or on the boundary of the counter-clockwise triangle ``abc``."""
     return _cross(a, b, p) >= 0.0 and _cross(b, c, p) >= 0.0 and _cross(c, a, p) >= 0.0
+
+
+def _is_convex(ring: list[Point]) -> bool:
+    """Whether a ring turns left at every vertex and goes around once (so it is simple).
+
+    A ring that turns left everywhere turns by ``2 pi k`` in total, ``k`` the number of
+    times it winds around; ``k = 1`` is a convex polygon, ``k >= 2`` a star that crosses
+    itself.
+    """
+    n = len(ring)
+    turning = 0.0
+    for i in range(n):
+        prev, cur, nxt = ring[i - 1], ring[i], ring[(i + 1) % n]
+        cross = _cross(prev, cur, nxt)
+        if cross <= 0.0:
+            return False
+        dot = (cur[0] - prev[0]) * (nxt[0] - cur[0]) + (cur[1] - prev[1]) * (nxt[1] - cur[1])
+        turning += math.atan2(cross, dot)
+    return turning < 3.0 * math.pi  # 2 pi, not 4 pi or more
+
+
+def _convex_rings(points: object, tolerance: float) -> list[list[Point]]:
+    """:func:`convex_pieces` as lists of vertex tuples."""
+    ring = _clean_ring(points, tolerance)
+    if len(ring) < 3:
+        raise PhysicsError(f"polygon {np.asarray(points).tolist()} has zero area")
+    if _is_convex(ring):
+        return [ring]
+    if not shapes.is_simple_polygon(ring):
+        raise PhysicsError(f"polygon {np.asarray(points).tolist()} is not simple")
+    remaining = list(range(len(ring)))
+    pieces: list[list[Point]] = []
+    while len(remaining) > 3:
+        m = len(remaining)
+        for k in range(m):
+            i0, i1, i2 = remaining[k - 1], remaining[k], remaining[(k + 1) % m]
+            a, b, c = ring[i0], ring[i1], ring[i2]
+            if _cross(a, b, c) <= 0.0:  # reflex or flat corner: not an ear
+                continue
+            others = (ring[j] for j in remaining if j not in (i0, i1, i2))
+            if any(_point_in_triangle(p, a, b, c) for p in others):
+                continue
+            pieces.append([a, b, c])
+            remaining.pop(k)
+            break
+        else:
+            raise PhysicsError(f"polygon {np.asarray(points).tolist()} is not simple")
+    pieces.append([ring[j] for j in remaining])
+    return pieces
 
 
 def convex_pieces(
@@ -205,44 +261,15 @@ def convex_pieces(
     Raises:
         PhysicsError: the polygon is degenerate or not simple.
     """
-    ring = _clean_ring(np.asarray(points, dtype=float), tolerance)
-    if len(ring) < 3:
-        raise PhysicsError(f"polygon {np.asarray(points).tolist()} has zero area")
-    if not shapes.is_simple_polygon(ring):
-        raise PhysicsError(f"polygon {np.asarray(points).tolist()} is not simple")
-    n = len(ring)
-    if all(_cross(ring[i - 1], ring[i], ring[(i + 1) % n]) > 0.0 for i in range(n)):
-        return [ring]
-    remaining = list(range(n))
-    triangles: list[np.ndarray] = []
-    while len(remaining) > 3:
-        m = len(remaining)
-        for k in range(m):
-            i0, i1, i2 = remaining[k - 1], remaining[k], remaining[(k + 1) % m]
-            a, b, c = ring[i0], ring[i1], ring[i2]
-            if _cross(a, b, c) <= 0.0:  # reflex or flat corner: not an ear
-                continue
-            others = (ring[j] for j in remaining if j not in (i0, i1, i2))
-            if any(_point_in_triangle(p, a, b, c) for p in others):
-                continue
-            triangles.append(np.array([a, b, c]))
-            remaining.pop(k)
-            break
-        else:
-            raise PhysicsError(f"polygon {np.asarray(points).tolist()} is not simple")
-    triangles.append(ring[remaining])
-    return triangles
+    return [np.array(piece) for piece in _convex_rings(points, tolerance)]
 
 
 @functools.lru_cache(maxsize=4096)
-def _cached_convex_pieces(
+def _cached_convex_rings(
     points: tuple[tuple[float, float], ...], tolerance: float
-) -> tuple[np.ndarray, ...]:
-    """:func:`convex_pieces`, cached: a space is rebuilt at every reset of the same world."""
-    pieces = tuple(convex_pieces(points, tolerance))
-    for piece in pieces:
-        piece.setflags(write=False)
-    return pieces
+) -> tuple[tuple[Point, ...], ...]:
+    """:func:`convex_pieces` as tuples, cached: a fixed world is rebuilt at every reset."""
+    return tuple(tuple(piece) for piece in _convex_rings(points, tolerance))
 
 
 def _obstacle_shapes(
@@ -261,10 +288,10 @@ def _obstacle_shapes(
         ]
     if isinstance(obstacle, PolygonObstacle):
         try:
-            pieces = _cached_convex_pieces(obstacle.points, config.geometry_tolerance)
+            pieces = _cached_convex_rings(obstacle.points, config.geometry_tolerance)
         except TypeError:  # unhashable points (lists): no caching
-            pieces = convex_pieces(obstacle.points, config.geometry_tolerance)
-        return [pymunk.Poly(body, [tuple(map(float, p)) for p in piece]) for piece in pieces]
+            pieces = _convex_rings(obstacle.points, config.geometry_tolerance)
+        return [pymunk.Poly(body, piece) for piece in pieces]
     raise PhysicsError(f"unknown obstacle type {type(obstacle).__name__}")
 
 

@@ -1,0 +1,305 @@
+"""SlamWrapper: spaces, belief observations, belief rewards, no ground-truth leak."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+
+import vslam_gym
+from vslam_gym.belief_observation import (
+    BeliefObservationConfig,
+    BeliefRaster,
+    PoseUncertainty,
+    object_boundary_length,
+)
+from vslam_gym.belief_reward import BeliefRewardConfig, d_optimality, pose_entropy
+from vslam_gym.env import LidarWorldEnv
+from vslam_gym.sim.world import CircleObstacle
+from vslam_gym.sim.world_file import load_world, world_to_toml
+from vslam_gym.slam.filter import Belief, LandmarkView
+from vslam_gym.slam.landmark import LandmarkModel
+from vslam_gym.slam_wrapper import SlamWrapper
+
+gym.register_envs(vslam_gym)
+
+EXPLORE_IDS = [vslam_gym.EXPLORE_ID, *vslam_gym.EXPLORE_WORLD_IDS.values()]
+
+
+def _actions(n: int, seed: int = 0) -> np.ndarray:
+    """A fixed, smooth action sequence (forward with a slow weave)."""
+    t = np.arange(n)
+    return np.stack([np.full(n, 0.6), 0.5 * np.sin(t / 7.0 + seed)], axis=1).astype(np.float32)
+
+
+def _rollout(env: gym.Env, seed: int, n: int) -> tuple[list[dict], list[float], list[dict]]:
+    obs, info = env.reset(seed=seed)
+    observations, rewards, infos = [obs], [], [info]
+    for action in _actions(n):
+        obs, reward, terminated, truncated, info = env.step(action)
+        observations.append(obs)
+        rewards.append(reward)
+        infos.append(info)
+        if terminated or truncated:
+            break
+    return observations, rewards, infos
+
+
+def _same_observations(a: list[dict], b: list[dict]) -> None:
+    assert len(a) == len(b)
+    for oa, ob in zip(a, b, strict=True):
+        assert oa.keys() == ob.keys()
+        for key in oa:
+            np.testing.assert_array_equal(oa[key], ob[key], err_msg=key)
+
+
+def test_registered_ids_wrap_the_world_env():
+    for env_id in EXPLORE_IDS:
+        env = gym.make(env_id)
+        assert isinstance(env, SlamWrapper), env_id
+        assert isinstance(env.unwrapped, LidarWorldEnv)
+        assert env.spec.max_episode_steps == vslam_gym.EXPLORE_MAX_STEPS[env.unwrapped.world_name]
+        env.close()
+
+
+@pytest.mark.parametrize("env_id", ["VSlam/ExploreSmall-v0", vslam_gym.EXPLORE_ID])
+def test_gymnasium_and_sb3_checkers_pass(env_id):
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make(env_id)
+    with pytest.warns(UserWarning, match="different from the unwrapped"):
+        gym_check_env(env, skip_render_check=True)
+    sb3_check_env(env, warn=True)
+    env.close()
+
+
+def test_observations_keep_shape_dtype_and_stay_in_space():
+    env = gym.make("VSlam/ExploreSmall-v0")
+    observations, _, _ = _rollout(env, seed=3, n=40)
+    space = env.observation_space
+    for obs in observations:
+        assert space.contains(obs)
+        for key, box in space.spaces.items():
+            assert obs[key].shape == box.shape and obs[key].dtype == box.dtype
+    assert observations[-1]["belief_map"][0].any(), "object lines are drawn after 40 steps"
+    assert observations[-1]["status"][0] > 0.0, "landmarks were created"
+    env.close()
+
+
+def test_reward_terms_add_up_and_match_the_formulas():
+    env = gym.make("VSlam/ExploreSmall-v0")
+    _, rewards, infos = _rollout(env, seed=1, n=30)
+    previous_cov = infos[0]["slam_pose_cov"]
+    for reward, info in zip(rewards, infos[1:], strict=True):
+        terms = info["rewards"]
+        assert set(terms) == {"pose_information", "new_boundary", "collision", "time"}
+        assert reward == pytest.approx(sum(terms.values()), abs=1e-12)
+        expected_info = pose_entropy(previous_cov) - pose_entropy(info["slam_pose_cov"])
+        assert terms["pose_information"] == pytest.approx(expected_info, rel=1e-9, abs=1e-12)
+        assert terms["new_boundary"] >= 0.0
+        assert terms["time"] == -0.01
+        assert terms["collision"] == (-1.0 if info["collision"] else 0.0)
+        previous_cov = info["slam_pose_cov"]
+    assert sum(i["rewards"]["new_boundary"] for i in infos[1:]) > 1.0, "walls were modelled"
+    env.close()
+
+
+def test_d_opt_and_coverage_presets():
+    base = gym.make("VSlam/LidarWorld-v0", world="small")
+    env = SlamWrapper(base, reward="d_opt")
+    _, rewards, infos = _rollout(env, seed=0, n=15)
+    for reward, info in zip(rewards, infos[1:], strict=True):
+        assert set(info["rewards"]) == {"collision", "d_opt"}
+        d_opt = d_optimality(info["slam_pose_cov"])
+        expected = math.tanh(0.01 / d_opt) - (100.0 if info["collision"] else 0.0)
+        assert reward == pytest.approx(expected, rel=1e-9)
+        assert 0.0 < info["rewards"]["d_opt"] <= 1.0
+    env = SlamWrapper(gym.make("VSlam/LidarWorld-v0", world="small"), reward="coverage")
+    _, rewards, infos = _rollout(env, seed=0, n=15)
+    assert all(set(i["rewards"]) == {"new_boundary"} for i in infos[1:])
+    assert all(r >= 0.0 for r in rewards)
+    assert sum(rewards) == pytest.approx(object_boundary_length(env.belief, 0.5), rel=1e-9)
+
+
+def test_custom_weights_and_bad_configuration():
+    env = SlamWrapper(
+        gym.make("VSlam/LidarWorld-v0", world="small"),
+        reward={"time": 0.5, "pose_information": 0.0},
+    )
+    _, _, infos = _rollout(env, seed=0, n=3)
+    assert infos[-1]["rewards"]["time"] == -0.5
+    assert "pose_information" not in infos[-1]["rewards"]
+    base = gym.make("VSlam/LidarWorld-v0", world="small")
+    with pytest.raises(ValueError, match="did you mean 'time'"):
+        SlamWrapper(base, reward={"tme": 1.0})
+    with pytest.raises(ValueError, match="unknown reward preset"):
+        SlamWrapper(base, reward="entropy")
+    with pytest.raises(ValueError, match="raster_cel"):
+        SlamWrapper(base, observation={"raster_cel": 0.1})
+    with pytest.raises(ValueError, match="preset"):
+        SlamWrapper(base, slam_config="fastest")
+    with pytest.raises(TypeError, match="LidarWorldEnv"):
+        SlamWrapper(gym.make("CartPole-v1"))
+
+
+def test_same_seed_same_episode_and_pickling():
+    a = gym.make("VSlam/ExploreSmall-v0")
+    b = gym.make("VSlam/ExploreSmall-v0")
+    obs_a, rew_a, _ = _rollout(a, seed=7, n=25)
+    obs_b, rew_b, _ = _rollout(b, seed=7, n=25)
+    _same_observations(obs_a, obs_b)
+    assert rew_a == rew_b
+    clone = pickle.loads(pickle.dumps(a))
+    action = np.array([0.5, -0.2], np.float32)
+    out_a, r_a, *_ = a.step(action)
+    out_c, r_c, *_ = clone.step(action)
+    _same_observations([out_a], [out_c])
+    assert r_a == r_c
+
+
+def _world_with_far_obstacle(tmp_path) -> str:
+    """The `small` world plus a disc 200 m away, beyond every beam's range."""
+    world = load_world("small")
+    far = CircleObstacle(center=(200.0, 200.0), radius=1.0)
+    path = tmp_path / "small.toml"
+    path.write_text(world_to_toml(dataclasses.replace(world, obstacles=(*world.obstacles, far))))
+    return str(path)
+
+
+class _CorruptTruth(gym.Wrapper):
+    """Replaces every ground-truth entry of ``info`` by garbage."""
+
+    def _corrupt(self, info):
+        info = dict(info)
+        info["pose"] = np.array([123.0, -45.0, 2.0])
+        info["odom_pose"] = np.array([-7.0, 8.0, 1.0])
+        info["hit_ids"] = np.full_like(info["hit_ids"], 99)
+        info["odometry_true"] = np.array([1.0, 2.0, 3.0])
+        info["contact_ids"] = (42,)
+        return info
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        return obs, self._corrupt(info)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, terminated, truncated, self._corrupt(info)
+
+
+def test_ground_truth_does_not_reach_observation_or_reward(tmp_path):
+    reference = SlamWrapper(LidarWorldEnv(world="small"))
+    obs_ref, rew_ref, info_ref = _rollout(reference, seed=5, n=30)
+
+    far_world = SlamWrapper(LidarWorldEnv(world=_world_with_far_obstacle(tmp_path)))
+    obs_far, rew_far, info_far = _rollout(far_world, seed=5, n=30)
+    for a, b in zip(info_ref, info_far, strict=True):  # same scans and odometry ...
+        np.testing.assert_array_equal(a["odometry_noisy"], b["odometry_noisy"])
+    _same_observations(obs_ref, obs_far)  # ... so the same observations and rewards
+    assert rew_ref == rew_far
+
+    corrupted = SlamWrapper(_CorruptTruth(LidarWorldEnv(world="small")))
+    obs_bad, rew_bad, info_bad = _rollout(corrupted, seed=5, n=30)
+    assert info_bad[-1]["pose"][0] == 123.0
+    _same_observations(obs_ref, obs_bad)
+    assert rew_ref == rew_bad
+
+
+def test_reset_starts_a_fresh_map_and_map_reset_scan_option():
+    env = gym.make("VSlam/ExploreSmall-v0")
+    obs, info = env.reset(seed=0)
+    assert info["landmarks"] == 0 and not obs["belief_map"].any()
+    _rollout(env, seed=0, n=20)
+    obs, info = env.reset(seed=1)
+    assert info["landmarks"] == 0 and env.get_wrapper_attr("belief").step == 0
+    mapped = SlamWrapper(LidarWorldEnv(world="small"), map_reset_scan=True)
+    obs, info = mapped.reset(seed=0)
+    assert info["landmarks"] > 0 and obs["belief_map"][0].any()
+
+
+def test_async_vector_env_of_a_registered_id():
+    envs = gym.make_vec("VSlam/ExploreSmall-v0", num_envs=2, vectorization_mode="async")
+    obs, _ = envs.reset(seed=[0, 1])
+    assert obs["belief_map"].shape == (2, 3, 64, 64)
+    for action in _actions(5):
+        obs, reward, *_ = envs.step(np.stack([action, action]))
+    assert reward.shape == (2,) and np.all(np.isfinite(reward))
+    envs.close()
+
+
+def test_render_draws_the_belief_over_the_world():
+    env = gym.make("VSlam/ExploreSmall-v0", render_mode="rgb_array")
+    _rollout(env, seed=0, n=20)
+    frame = env.render()
+    plain = env.unwrapped.render()
+    assert frame.shape == plain.shape and frame.dtype == np.uint8
+    object_blue = np.all(frame == (20, 40, 160), axis=-1)
+    assert object_blue.sum() > 50 and not np.all(plain == (20, 40, 160), axis=-1).any()
+
+
+# ---------------------------------------------------------------- belief observation pieces
+
+
+def _belief_with_line(start, end, pose, u=0.0, ref_cov=None) -> Belief:
+    cov = np.diag([0.01, 0.01, 0.04, 0.04])
+    model = LandmarkModel(mean=np.array([start, end], float), cov=cov, u=np.array([u]))
+    view = LandmarkView(
+        id=0,
+        reference=np.array(start, float),
+        reference_cov=np.zeros((2, 2)) if ref_cov is None else ref_cov,
+        model=model,
+        object_vertices=(0, 2),
+    )
+    pose = np.asarray(pose, float)
+    return Belief(0, pose, np.eye(3) * 1e-4, pose, (view,), (), 5, 0.0)
+
+
+def test_raster_is_egocentric_heading_up():
+    config = BeliefObservationConfig(raster_size=64, raster_cell=0.25)
+    raster = BeliefRaster(config, unknown_threshold=0.5)
+    # a wall 2 m ahead, from 1 m left to 1 m right, robot at the origin heading +x
+    image = raster.observe(_belief_with_line((2.0, 1.0), (2.0, -1.0), (0.0, 0.0, 0.0)))
+    rows, cols = np.nonzero(image[0])
+    assert set(rows) == {32 - 8}  # 2 m ahead = 8 cells above the centre row
+    assert cols.min() == 28 and cols.max() == 36  # +-1 m = +-4 cells
+    assert not image[1].any()
+    # the same wall seen by a robot at (5, 5) heading +y (the wall is now on its right)
+    image = raster.observe(_belief_with_line((7.0, 6.0), (7.0, 4.0), (5.0, 5.0, math.pi / 2)))
+    rows, cols = np.nonzero(image[0])
+    assert set(cols) == {32 + 8}  # 2 m to the right
+    assert rows.min() == 28 and rows.max() == 36
+    # unknown lines go to channel 1; uncertainty rises from the first vertex to the second
+    image = raster.observe(_belief_with_line((2.0, 1.0), (2.0, -1.0), (0, 0, 0), u=0.9))
+    assert not image[0].any() and image[1].sum() == image[2][image[1] > 0].size * 255
+    levels = image[2][24, 28:37]
+    assert 0 < levels[0] < levels[-1]  # vertex 0 at the left (sd 0.1 m) ... vertex 1 (0.2 m)
+    assert levels[0] == pytest.approx(1 + 254 * 0.1, abs=3)
+    assert levels[-1] == pytest.approx(1 + 254 * 0.2, abs=3)
+
+
+def test_pose_uncertainty_features_in_the_robot_frame():
+    features = PoseUncertainty(BeliefObservationConfig())
+    cov = np.diag([0.04, 0.01, 0.0025])  # long axis along world x
+    ahead = features.observe(np.array([0.0, 0.0, 0.0]), cov)
+    across = features.observe(np.array([0.0, 0.0, math.pi / 2]), cov)
+    assert ahead[0] == pytest.approx(math.log(0.04)) and ahead[1] == pytest.approx(math.log(0.01))
+    assert ahead[2] == pytest.approx(1.0) and across[2] == pytest.approx(-1.0)  # cos 2a
+    assert ahead[4] == pytest.approx(math.log(0.0025))
+    assert ahead[5] == ahead[6] == 0.0
+    corr = np.array([[0.04, 0.0, 0.006], [0.0, 0.01, 0.0], [0.006, 0.0, 0.0025]])
+    out = features.observe(np.zeros(3), corr)
+    assert out[5] == pytest.approx(0.006 / math.sqrt(0.04 * 0.0025), rel=1e-6)
+
+
+def test_reward_config_validation():
+    with pytest.raises(ValueError, match="time"):
+        BeliefRewardConfig(time=-1.0)
+    with pytest.raises(ValueError, match="finite"):
+        BeliefRewardConfig(new_boundary=float("nan"))
+    assert BeliefRewardConfig.preset("d_opt").collision == 100.0
+    assert d_optimality(np.diag([1.0, 4.0, 16.0])) == pytest.approx(4.0)

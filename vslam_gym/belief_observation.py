@@ -1,0 +1,259 @@
+"""Observations computed from the SLAM belief alone (for :class:`vslam_gym.SlamWrapper`).
+
+Three pieces, each a small class with ``space()`` and ``observe(...)``:
+
+- :class:`PoseUncertainty`: the 3x3 pose covariance as seven well-scaled numbers in the
+  robot frame;
+- :class:`BeliefRaster`: an egocentric ``uint8`` image ``(3, H, W)`` of the landmark map
+  around the estimated pose (object lines, unknown lines, vertex uncertainty);
+- :class:`SlamStatus`: log-scaled landmark count and steps since the last association.
+
+Nothing here sees ground truth: the inputs are a :class:`vslam_gym.slam.filter.Belief`
+and counters kept by the wrapper.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from gymnasium import spaces
+
+from vslam_gym.slam.filter import Belief
+
+RASTER_CHANNELS = ("object_lines", "unknown_lines", "vertex_uncertainty")
+"""Channel names of :class:`BeliefRaster`, in order."""
+
+
+@dataclass(frozen=True)
+class BeliefObservationConfig:
+    """Shape and scaling of the belief observations.
+
+    Attributes:
+        raster_size: side of the square raster [cells] (``H = W``).
+        raster_cell: side of one raster cell [m].
+        uncertainty_scale: vertex standard deviation [m] drawn at full intensity (255) in
+            the ``vertex_uncertainty`` channel; smaller deviations scale linearly.
+        log_floor: lower clip of the log-variances of :class:`PoseUncertainty`
+            [log m^2 or log rad^2].
+        log_ceiling: upper clip of those log-variances.
+        status_ceiling: upper bound of the ``log1p`` counters of :class:`SlamStatus`.
+    """
+
+    raster_size: int = 64
+    raster_cell: float = 0.25
+    uncertainty_scale: float = 1.0
+    log_floor: float = -20.0
+    log_ceiling: float = 10.0
+    status_ceiling: float = 20.0
+
+    def __post_init__(self) -> None:
+        if int(self.raster_size) != self.raster_size or self.raster_size < 2:
+            raise ValueError(f"raster_size must be an integer >= 2, got {self.raster_size!r}")
+        for name in ("raster_cell", "uncertainty_scale", "status_ceiling"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"BeliefObservationConfig.{name} must be > 0, got {value!r}")
+        if not self.log_floor < self.log_ceiling:
+            raise ValueError(
+                f"log_floor ({self.log_floor}) must be below log_ceiling ({self.log_ceiling})"
+            )
+
+
+class PoseUncertainty:
+    """The pose covariance as seven numbers, robot frame.
+
+    | Index | Content                                                      | Unit          |
+    |-------|--------------------------------------------------------------|---------------|
+    | 0     | log of the larger eigenvalue of the position covariance     | log m^2       |
+    | 1     | log of the smaller eigenvalue                                | log m^2       |
+    | 2, 3  | ``cos 2a``, ``sin 2a``: major axis at angle ``a`` from the    | -             |
+    |       | robot heading (an axis, so the angle is doubled)             |               |
+    | 4     | log of the heading variance                                  | log rad^2     |
+    | 5, 6  | correlation of the heading with the forward / left position | [-1, 1]       |
+
+    Log values are clipped to ``[log_floor, log_ceiling]``.
+    """
+
+    size = 7
+
+    def __init__(self, config: BeliefObservationConfig) -> None:
+        self.config = config
+
+    def space(self) -> spaces.Box:
+        """``Box(low, high, (7,), float32)`` with the clip bounds above."""
+        c = self.config
+        low = np.array([c.log_floor, c.log_floor, -1, -1, c.log_floor, -1, -1], np.float32)
+        high = np.array([c.log_ceiling, c.log_ceiling, 1, 1, c.log_ceiling, 1, 1], np.float32)
+        return spaces.Box(low, high, dtype=np.float32)
+
+    def observe(self, pose: np.ndarray, pose_cov: np.ndarray) -> np.ndarray:
+        """Features of ``pose_cov`` (world frame ``x, y, theta``) at heading ``pose[2]``."""
+        c = self.config
+        cos, sin = np.cos(pose[2]), np.sin(pose[2])
+        to_robot = np.array([[cos, sin, 0.0], [-sin, cos, 0.0], [0.0, 0.0, 1.0]])
+        cov = to_robot @ pose_cov @ to_robot.T
+        cov = 0.5 * (cov + cov.T)
+        eigvals, eigvecs = np.linalg.eigh(cov[:2, :2])
+        major = eigvecs[:, 1]
+        angle = np.arctan2(major[1], major[0])
+        tiny = np.exp(c.log_floor)
+        log_pos = np.log(np.maximum(eigvals[::-1], tiny))
+        var_theta = max(cov[2, 2], tiny)
+        sd = np.sqrt(np.maximum(np.diag(cov), tiny))
+        corr = cov[2, :2] / (sd[2] * sd[:2])
+        out = np.array(
+            [
+                log_pos[0],
+                log_pos[1],
+                np.cos(2 * angle),
+                np.sin(2 * angle),
+                np.log(var_theta),
+                corr[0],
+                corr[1],
+            ]
+        )
+        out[[0, 1, 4]] = np.clip(out[[0, 1, 4]], c.log_floor, c.log_ceiling)
+        out[[5, 6]] = np.clip(out[[5, 6]], -1.0, 1.0)
+        return out.astype(np.float32)
+
+
+def belief_segments(belief: Belief, unknown_threshold: float) -> dict[str, np.ndarray]:
+    """Every line of the belief's landmarks as segments, world frame.
+
+    Args:
+        belief: the SLAM belief.
+        unknown_threshold: a line with ``u > unknown_threshold`` is an unknown line.
+
+    Returns:
+        ``start``, ``end``: ``(n, 2)`` segment end points [m]; ``unknown``: ``(n,)`` bool;
+        ``sigma_start``, ``sigma_end``: ``(n,)`` standard deviation [m] of the end
+        vertices (square root of the largest eigenvalue of the vertex covariance given
+        the reference plus the reference covariance; correlations ignored).
+    """
+    starts, ends, unknown, sig_a, sig_b = [], [], [], [], []
+    for lm in belief.landmarks:
+        model = lm.model
+        if model.n_lines == 0:
+            continue
+        idx = model.line_vertices()
+        k = model.n_vertices
+        blocks = model.cov.reshape(k, 2, k, 2)[np.arange(k), :, np.arange(k), :]
+        total = blocks + lm.reference_cov[None, :, :]
+        sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(total)[:, -1], 0.0))
+        starts.append(model.mean[idx[:, 0]])
+        ends.append(model.mean[idx[:, 1]])
+        unknown.append(model.u > unknown_threshold)
+        sig_a.append(sigma[idx[:, 0]])
+        sig_b.append(sigma[idx[:, 1]])
+    if not starts:
+        empty = np.zeros((0, 2))
+        return {
+            "start": empty,
+            "end": empty.copy(),
+            "unknown": np.zeros(0, bool),
+            "sigma_start": np.zeros(0),
+            "sigma_end": np.zeros(0),
+        }
+    return {
+        "start": np.concatenate(starts),
+        "end": np.concatenate(ends),
+        "unknown": np.concatenate(unknown),
+        "sigma_start": np.concatenate(sig_a),
+        "sigma_end": np.concatenate(sig_b),
+    }
+
+
+def object_boundary_length(belief: Belief, unknown_threshold: float) -> float:
+    """Total length [m] of the belief's object lines (``u <= unknown_threshold``)."""
+    seg = belief_segments(belief, unknown_threshold)
+    known = ~seg["unknown"]
+    return float(np.linalg.norm(seg["end"][known] - seg["start"][known], axis=1).sum())
+
+
+class BeliefRaster:
+    """Egocentric image of the belief map: ``uint8`` ``(3, H, W)``.
+
+    The estimated lidar pose is at the image centre, heading up: row ``0`` is
+    ``H/2 * cell`` metres ahead, column ``0`` is ``W/2 * cell`` metres to the left. A
+    cell is marked when a line passes through it (lines are sampled every half cell).
+
+    | Channel | Name                 | Value                                              |
+    |---------|----------------------|----------------------------------------------------|
+    | 0       | `object_lines`       | 255 on modelled object boundaries (``u <= 0.5``),   |
+    |         |                      | else 0                                             |
+    | 1       | `unknown_lines`      | 255 on unknown lines (free space meets unobserved  |
+    |         |                      | space: the frontiers of the map), else 0           |
+    | 2       | `vertex_uncertainty` | on every line: ``1 + 254 min(1, s / scale)`` with  |
+    |         |                      | ``s`` the standard deviation [m] interpolated      |
+    |         |                      | between the line's vertices; 0 where no line       |
+    """
+
+    def __init__(self, config: BeliefObservationConfig, unknown_threshold: float) -> None:
+        self.config = config
+        self.unknown_threshold = float(unknown_threshold)
+
+    def space(self) -> spaces.Box:
+        """``Box(0, 255, (3, H, W), uint8)``."""
+        n = int(self.config.raster_size)
+        return spaces.Box(0, 255, shape=(len(RASTER_CHANNELS), n, n), dtype=np.uint8)
+
+    def observe(self, belief: Belief) -> np.ndarray:
+        """Rasterise ``belief`` around ``belief.pose`` (the lidar pose)."""
+        return self.rasterize(belief_segments(belief, self.unknown_threshold), belief.pose)
+
+    def rasterize(self, seg: dict[str, np.ndarray], pose: np.ndarray) -> np.ndarray:
+        """Rasterise segments (as :func:`belief_segments` returns) around ``pose``."""
+        c = self.config
+        n = int(c.raster_size)
+        image = np.zeros((len(RASTER_CHANNELS), n, n), dtype=np.uint8)
+        if seg["start"].shape[0] == 0:
+            return image
+        cos, sin = np.cos(pose[2]), np.sin(pose[2])
+        rot = np.array([[cos, sin], [-sin, cos]])  # world -> robot (forward, left)
+        a = (seg["start"] - pose[:2]) @ rot.T
+        b = (seg["end"] - pose[:2]) @ rot.T
+        step = 0.5 * c.raster_cell
+        counts = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / step).astype(int), 1) + 1
+        line = np.repeat(np.arange(a.shape[0]), counts)
+        offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        t = (np.arange(line.size) - offsets[line]) / (counts[line] - 1)
+        points = a[line] + t[:, None] * (b - a)[line]
+        half = 0.5 * n
+        rows = np.floor(half - points[:, 0] / c.raster_cell).astype(int)
+        cols = np.floor(half - points[:, 1] / c.raster_cell).astype(int)
+        inside = (rows >= 0) & (rows < n) & (cols >= 0) & (cols < n)
+        rows, cols, line, t = rows[inside], cols[inside], line[inside], t[inside]
+        unknown = seg["unknown"][line]
+        image[0, rows[~unknown], cols[~unknown]] = 255
+        image[1, rows[unknown], cols[unknown]] = 255
+        sigma = (1 - t) * seg["sigma_start"][line] + t * seg["sigma_end"][line]
+        level = 1.0 + 254.0 * np.minimum(sigma / c.uncertainty_scale, 1.0)
+        channel = np.zeros((n, n))
+        np.maximum.at(channel, (rows, cols), level)
+        image[2] = np.round(channel).astype(np.uint8)
+        return image
+
+
+class SlamStatus:
+    """Two counters of the filter, log-scaled.
+
+    | Index | Content                                                          |
+    |-------|------------------------------------------------------------------|
+    | 0     | ``log1p(landmark count)``                                        |
+    | 1     | ``log1p(steps since a scan set was last associated to a landmark)`` |
+    """
+
+    size = 2
+
+    def __init__(self, config: BeliefObservationConfig) -> None:
+        self.config = config
+
+    def space(self) -> spaces.Box:
+        """``Box(0, status_ceiling, (2,), float32)``."""
+        return spaces.Box(0.0, self.config.status_ceiling, shape=(2,), dtype=np.float32)
+
+    def observe(self, landmarks: int, steps_since_association: int) -> np.ndarray:
+        """The two counters as float32."""
+        values = np.log1p([float(landmarks), float(steps_since_association)])
+        return np.minimum(values, self.config.status_ceiling).astype(np.float32)
