@@ -16,7 +16,12 @@ Registered ids:
 
 from __future__ import annotations
 
-from gymnasium.envs.registration import WrapperSpec, register, registry
+import dataclasses
+from typing import Any
+
+from gymnasium.envs.registration import EnvSpec, WrapperSpec, register, registry
+
+from vslam_gym.config_utils import check_keys
 
 __version__ = "0.1.0"
 
@@ -43,7 +48,12 @@ EXPLORE_MAX_STEPS = {
 SLAM_WRAPPER_SPEC = WrapperSpec(
     name="SlamWrapper",
     entry_point="vslam_gym.slam_wrapper:SlamWrapper",
-    kwargs={"slam_config": "default", "reward": "default", "observation": None},
+    kwargs={
+        "slam_config": "default",
+        "reward": "default",
+        "observation": None,
+        "map_reset_scan": False,
+    },
 )
 """The wrapper every exploration id applies (so ``Monitor`` records the belief reward)."""
 
@@ -57,7 +67,8 @@ def _register_envs() -> None:
             max_episode_steps=1000,
             kwargs={"world": "house"},
         )
-    worlds = {EXPLORE_ID: "random", **{v: k for k, v in EXPLORE_WORLD_IDS.items()}}
+    worlds = {env_id: world for world, env_id in EXPLORE_WORLD_IDS.items()}
+    worlds[EXPLORE_ID] = "random"
     for env_id, world in worlds.items():
         if env_id not in registry:
             register(
@@ -67,6 +78,35 @@ def _register_envs() -> None:
                 kwargs={"world": world, "terminate_on_collision": True},
                 additional_wrappers=(SLAM_WRAPPER_SPEC,),
             )
+
+
+def explore_spec(env_id: str = EXPLORE_ID, **wrapper_kwargs: Any) -> EnvSpec:
+    """The spec of an exploration id with other :class:`SlamWrapper` arguments.
+
+    ``gym.make(explore_spec(reward="d_opt"))`` is ``VSlam/Explore-v0`` with the
+    ``d_opt`` reward; environment arguments still go to ``gym.make``, e.g.
+    ``gym.make(explore_spec("VSlam/ExploreHouse-v0", reward="coverage"), render_mode="rgb_array")``.
+
+    Args:
+        env_id: a registered exploration id.
+        **wrapper_kwargs: ``slam_config``, ``reward``, ``observation``,
+            ``map_reset_scan`` (JSON-able values: preset names or mappings).
+
+    Raises:
+        ValueError: ``env_id`` is not an exploration id, or an unknown wrapper argument.
+    """
+    spec = registry.get(env_id)
+    if spec is None or SLAM_WRAPPER_SPEC not in spec.additional_wrappers:
+        raise ValueError(f"{env_id!r} is not an exploration id: {sorted(_explore_ids())}")
+    check_keys(wrapper_kwargs, SLAM_WRAPPER_SPEC.kwargs, "explore_spec")
+    wrapper = dataclasses.replace(
+        SLAM_WRAPPER_SPEC, kwargs={**SLAM_WRAPPER_SPEC.kwargs, **wrapper_kwargs}
+    )
+    return dataclasses.replace(spec, additional_wrappers=(wrapper,))
+
+
+def _explore_ids() -> list[str]:
+    return [EXPLORE_ID, *EXPLORE_WORLD_IDS.values()]
 
 
 def __getattr__(name: str):  # lazy: importing the package stays light

@@ -1,0 +1,203 @@
+"""Train a stable-baselines3 PPO exploration policy on the SLAM-wrapped environment.
+
+The policy sees only the belief (``SlamWrapper`` observations: normalised scan, pose
+uncertainty, egocentric belief raster, SLAM status) and is rewarded by it. Several
+environments run in subprocesses; ``Monitor`` records the belief reward per episode.
+
+Training worlds: ``VSlam/Explore-v0`` draws a new random world at every reset from the
+environment's generator, seeded by ``--seed`` (environment ``i`` gets ``seed + i``);
+evaluate on held-out worlds with ``agents/evaluate_agents.py --seed 1000`` or another
+range nobody trained on.
+
+Writes into ``--out``: ``final_model.zip`` (``PPO.load`` reads it), checkpoints
+``checkpoints/ppo_<steps>_steps.zip``, ``monitor/`` CSVs (episode return and length per
+environment), ``train_config.json``; TensorBoard logs with ``--tensorboard DIR`` (needs
+``pip install "vslam-gym[tensorboard]"``).
+
+    python agents/train_ppo.py --env VSlam/Explore-v0 --timesteps 50000 --out runs/ppo
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+import vslam_gym
+
+
+@dataclass(frozen=True)
+class PpoSettings:
+    """PPO hyper-parameters (stable-baselines3 names) used by :func:`train`.
+
+    Attributes:
+        n_steps: steps per environment per rollout.
+        batch_size: minibatch size.
+        n_epochs: optimisation epochs per rollout.
+        learning_rate: Adam step size.
+        gamma: discount factor per step (0.1 s).
+        gae_lambda: GAE parameter.
+        ent_coef: entropy bonus.
+        clip_range: PPO clipping.
+        net_arch: hidden layer sizes of the policy and value heads.
+        cnn_output_dim: features of the belief-raster CNN (NatureCNN).
+    """
+
+    n_steps: int = 256
+    batch_size: int = 64
+    n_epochs: int = 5
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    ent_coef: float = 0.01
+    clip_range: float = 0.2
+    net_arch: tuple[int, ...] = (64, 64)
+    cnn_output_dim: int = 128
+
+
+def make_env_fn(env_id: str, seed: int, reward: str | None) -> Any:
+    """A picklable constructor of one training environment (for ``make_vec_env``)."""
+
+    def make() -> gym.Env:
+        spec = env_id if reward is None else vslam_gym.explore_spec(env_id, reward=reward)
+        return gym.make(spec)
+
+    return make
+
+
+def train(
+    env_id: str,
+    timesteps: int,
+    out: Path,
+    n_envs: int = 2,
+    seed: int = 0,
+    reward: str | None = None,
+    settings: PpoSettings | None = None,
+    checkpoint_every: int = 10_000,
+    tensorboard: str | None = None,
+    progress_bar: bool = True,
+    subprocesses: bool = True,
+) -> Path:
+    """Train PPO and save ``out/final_model.zip``; returns its path.
+
+    Args:
+        env_id: a registered exploration id (``VSlam/Explore-v0`` or a shipped world's).
+        timesteps: total environment steps over all environments.
+        out: output directory (created).
+        n_envs: parallel environments.
+        seed: seed of PPO and of the environments (environment ``i``: ``seed + i``).
+        reward: a reward preset name (``default``, ``d_opt``, ``coverage``); None keeps
+            the registration's.
+        settings: PPO hyper-parameters.
+        checkpoint_every: save a checkpoint every this many total steps (0: never).
+        tensorboard: TensorBoard log directory, or None.
+        progress_bar: show stable-baselines3's progress bar.
+        subprocesses: run the environments in subprocesses (else in this process).
+    """
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import CheckpointCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    if tensorboard is not None and importlib.util.find_spec("tensorboard") is None:
+        raise SystemExit('--tensorboard needs TensorBoard: pip install "vslam-gym[tensorboard]"')
+    settings = settings or PpoSettings()
+    out.mkdir(parents=True, exist_ok=True)
+    vec_env = make_vec_env(
+        make_env_fn(env_id, seed, reward),
+        n_envs=n_envs,
+        seed=seed,
+        monitor_dir=str(out / "monitor"),
+        vec_env_cls=SubprocVecEnv if subprocesses and n_envs > 1 else DummyVecEnv,
+    )
+    policy_kwargs = {
+        "net_arch": list(settings.net_arch),
+        "features_extractor_kwargs": {"cnn_output_dim": settings.cnn_output_dim},
+    }
+    model = PPO(
+        "MultiInputPolicy",
+        vec_env,
+        n_steps=settings.n_steps,
+        batch_size=settings.batch_size,
+        n_epochs=settings.n_epochs,
+        learning_rate=settings.learning_rate,
+        gamma=settings.gamma,
+        gae_lambda=settings.gae_lambda,
+        ent_coef=settings.ent_coef,
+        clip_range=settings.clip_range,
+        policy_kwargs=policy_kwargs,
+        tensorboard_log=tensorboard,
+        seed=seed,
+        device="cpu",
+        verbose=0,
+    )
+    callbacks = []
+    if checkpoint_every > 0:
+        callbacks.append(
+            CheckpointCallback(
+                save_freq=max(1, checkpoint_every // n_envs),
+                save_path=str(out / "checkpoints"),
+                name_prefix="ppo",
+            )
+        )
+    config = {
+        "env_id": env_id,
+        "timesteps": timesteps,
+        "n_envs": n_envs,
+        "seed": seed,
+        "reward": reward,
+        "settings": asdict(settings),
+        "vslam_gym": vslam_gym.__version__,
+    }
+    start = time.perf_counter()
+    model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=progress_bar)
+    config["wall_s"] = time.perf_counter() - start
+    config["steps_per_s"] = timesteps / config["wall_s"]
+    path = out / "final_model.zip"
+    model.save(path)
+    (out / "train_config.json").write_text(json.dumps(config, indent=2))
+    vec_env.close()
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line entry point."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default=vslam_gym.EXPLORE_ID, help="exploration env id")
+    parser.add_argument("--timesteps", type=int, default=50_000, help="total env steps")
+    parser.add_argument("--n-envs", type=int, default=2, help="parallel environments")
+    parser.add_argument("--seed", type=int, default=0, help="PPO and environment seed")
+    parser.add_argument("--reward", default=None, help="reward preset (default|d_opt|coverage)")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--checkpoint-every", type=int, default=10_000, help="steps, 0: never")
+    parser.add_argument("--tensorboard", default=None, help="TensorBoard log directory")
+    parser.add_argument("--n-steps", type=int, default=PpoSettings.n_steps)
+    parser.add_argument("--batch-size", type=int, default=PpoSettings.batch_size)
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    args = parser.parse_args(argv)
+    settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
+    path = train(
+        args.env,
+        args.timesteps,
+        args.out,
+        n_envs=args.n_envs,
+        seed=args.seed,
+        reward=args.reward,
+        settings=settings,
+        checkpoint_every=args.checkpoint_every,
+        tensorboard=args.tensorboard,
+        progress_bar=not args.no_progress,
+    )
+    config = json.loads((args.out / "train_config.json").read_text())
+    print(f"saved {path} ({config['wall_s']:.0f} s, {config['steps_per_s']:.1f} steps/s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,105 @@
+"""Reset time and throughput of the SLAM-wrapped environment (issue #5 targets).
+
+For each exploration id: the median wall time of ``reset(seed=s)`` over repeats (a new
+world for ``VSlam/Explore-v0``, always a fresh SLAM), and the steps per second of
+``step()`` in one process, driven by a simple reactive policy (forward, turning away
+from the nearest return ahead) so that the robot keeps mapping new walls. The step time
+includes the simulation, the SLAM filter, the belief raster and the reward.
+
+Targets: reset < 10 ms; >= 100 steps/s on ``house`` and random worlds.
+
+    python benchmarks/bench_wrapper.py [--ids VSlam/Explore-v0 VSlam/ExploreHouse-v0]
+                                       [--steps 300] [--resets 20] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import vslam_gym
+from vslam_gym.evaluation import machine_description
+
+RESET_TARGET_MS = 10.0
+"""Target median reset time [ms]."""
+STEPS_PER_S_TARGET = 100.0
+"""Target throughput [steps/s] in one process."""
+FRONT_HALF_WIDTH = 20
+"""Beams either side of straight ahead the reactive policy watches."""
+TURN_DISTANCE = 0.12
+"""Normalised range (of max range) below which the policy turns in place."""
+
+
+def reactive_action(scan: np.ndarray) -> np.ndarray:
+    """Forward, or turn towards the freer side when something is close ahead."""
+    mid = scan.size // 2
+    ahead = scan[mid - FRONT_HALF_WIDTH : mid + FRONT_HALF_WIDTH + 1]
+    if ahead.min() > TURN_DISTANCE:
+        return np.array([0.8, 0.0], np.float32)
+    left, right = scan[:mid].mean(), scan[mid + 1 :].mean()  # descending bearings
+    return np.array([0.0, 1.0 if left > right else -1.0], np.float32)
+
+
+def bench(env_id: str, steps: int, resets: int, seed: int) -> dict[str, float]:
+    """Median reset [ms] and steps/s of one id."""
+    env = gym.make(env_id)
+    env.reset(seed=seed)  # imports, caches
+    reset_ms = []
+    for i in range(resets):
+        start = time.perf_counter()
+        env.reset(seed=seed + i)
+        reset_ms.append((time.perf_counter() - start) * 1e3)
+    obs, _ = env.reset(seed=seed)
+    step_s, slam_ms = [], []
+    for _ in range(steps):
+        start = time.perf_counter()
+        obs, _, terminated, truncated, _ = env.step(reactive_action(obs["scan"]))
+        step_s.append(time.perf_counter() - start)
+        slam_ms.append(env.get_wrapper_attr("belief").step_ms)
+        if terminated or truncated:
+            obs, _ = env.reset()
+    env.close()
+    step_s = np.array(step_s)
+    return {
+        "reset_ms": float(np.median(reset_ms)),
+        "steps_per_s": float(1.0 / np.median(step_s)),
+        "mean_steps_per_s": float(steps / step_s.sum()),
+        "slam_ms": float(np.median(slam_ms)),
+        "step_p95_ms": float(np.percentile(step_s, 95) * 1e3),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--ids", nargs="+", default=[vslam_gym.EXPLORE_ID, vslam_gym.EXPLORE_WORLD_IDS["house"]]
+    )
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--resets", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    print(f"machine: {machine_description()}; load average {os.getloadavg()[0]:.2f}")
+    header = (
+        f"{'id':32s} {'reset ms':>9s} {'steps/s':>8s} {'mean/s':>7s} {'SLAM ms':>8s} {'p95 ms':>7s}"
+    )
+    print(header)
+    print("-" * len(header))
+    for env_id in args.ids:
+        r = bench(env_id, args.steps, args.resets, args.seed)
+        print(
+            f"{env_id:32s} {r['reset_ms']:9.2f} {r['steps_per_s']:8.1f} "
+            f"{r['mean_steps_per_s']:7.1f} {r['slam_ms']:8.1f} {r['step_p95_ms']:7.1f}"
+        )
+    print(
+        f"targets: reset < {RESET_TARGET_MS:g} ms, >= {STEPS_PER_S_TARGET:g} steps/s "
+        f"(steps/s = 1 / median step; mean/s = steps / total time); "
+        f"load average after {os.getloadavg()[0]:.2f}"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""PPO smoke run on the SLAM-wrapped environment: train, save, load, act."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import vslam_gym
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.append(str(ROOT))  # appended: the installed vslam_gym stays first
+
+from agents.train_ppo import PpoSettings, main, train  # noqa: E402
+
+pytest.importorskip("stable_baselines3")
+
+
+def test_ppo_smoke_run_saves_a_model_that_acts(tmp_path):
+    from stable_baselines3 import PPO
+
+    settings = PpoSettings(n_steps=64, batch_size=32, n_epochs=1, net_arch=(16,), cnn_output_dim=16)
+    path = train(
+        "VSlam/ExploreSmall-v0",
+        timesteps=128,
+        out=tmp_path,
+        n_envs=1,
+        seed=0,
+        settings=settings,
+        checkpoint_every=64,
+        progress_bar=False,
+        subprocesses=False,
+    )
+    assert path.is_file()
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == [
+        "ppo_128_steps.zip",
+        "ppo_64_steps.zip",
+    ]
+    config = json.loads((tmp_path / "train_config.json").read_text())
+    assert config["timesteps"] == 128 and config["steps_per_s"] > 0
+    model = PPO.load(path, device="cpu")
+    env = gym.make("VSlam/ExploreSmall-v0")
+    obs, _ = env.reset(seed=3)
+    for _ in range(5):
+        action, _ = model.predict(obs, deterministic=True)
+        assert env.action_space.contains(action.astype(np.float32))
+        obs, reward, terminated, truncated, info = env.step(action)
+        assert np.isfinite(reward) and reward == pytest.approx(sum(info["rewards"].values()))
+    env.close()
+
+
+def test_command_line_with_another_reward_preset(tmp_path, capsys):
+    code = main(
+        [
+            "--env", "VSlam/ExploreSmall-v0", "--timesteps", "64", "--n-envs", "1",
+            "--n-steps", "64", "--batch-size", "32", "--reward", "d_opt",
+            "--checkpoint-every", "0", "--no-progress", "--out", str(tmp_path),
+        ]
+    )  # fmt: skip
+    assert code == 0
+    assert "saved" in capsys.readouterr().out
+    config = json.loads((tmp_path / "train_config.json").read_text())
+    assert config["reward"] == "d_opt" and config["env_id"] == "VSlam/ExploreSmall-v0"
+    monitor = (tmp_path / "monitor" / "0.monitor.csv").read_text()
+    assert monitor.startswith("#") and vslam_gym.__version__ == config["vslam_gym"]
