@@ -83,6 +83,7 @@ def train(
     tensorboard: str | None = None,
     progress_bar: bool = True,
     subprocesses: bool = True,
+    max_minutes: float | None = None,
 ) -> Path:
     """Train PPO and save ``out/final_model.zip``; returns its path.
 
@@ -99,9 +100,11 @@ def train(
         tensorboard: TensorBoard log directory, or None.
         progress_bar: show stable-baselines3's progress bar.
         subprocesses: run the environments in subprocesses (else in this process).
+        max_minutes: stop training after this wall time [min] (the model trained so
+            far is saved; ``train_config.json`` has ``trained_timesteps``).
     """
     from stable_baselines3 import PPO
-    from stable_baselines3.common.callbacks import CheckpointCallback
+    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
@@ -137,7 +140,20 @@ def train(
         device="cpu",
         verbose=0,
     )
-    callbacks = []
+
+    class WallClockLimit(BaseCallback):
+        """Stops training at a wall-clock deadline."""
+
+        def __init__(self, seconds: float) -> None:
+            super().__init__()
+            self.deadline = time.perf_counter() + seconds
+
+        def _on_step(self) -> bool:
+            return time.perf_counter() < self.deadline
+
+    callbacks: list[BaseCallback] = []
+    if max_minutes is not None:
+        callbacks.append(WallClockLimit(max_minutes * 60.0))
     if checkpoint_every > 0:
         callbacks.append(
             CheckpointCallback(
@@ -158,7 +174,8 @@ def train(
     start = time.perf_counter()
     model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=progress_bar)
     config["wall_s"] = time.perf_counter() - start
-    config["steps_per_s"] = timesteps / config["wall_s"]
+    config["trained_timesteps"] = int(model.num_timesteps)
+    config["steps_per_s"] = model.num_timesteps / config["wall_s"]
     path = out / "final_model.zip"
     model.save(path)
     (out / "train_config.json").write_text(json.dumps(config, indent=2))
@@ -180,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n-steps", type=int, default=PpoSettings.n_steps)
     parser.add_argument("--batch-size", type=int, default=PpoSettings.batch_size)
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    parser.add_argument("--max-minutes", type=float, default=None, help="wall-time limit")
     args = parser.parse_args(argv)
     settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
     path = train(
@@ -193,9 +211,13 @@ def main(argv: list[str] | None = None) -> int:
         checkpoint_every=args.checkpoint_every,
         tensorboard=args.tensorboard,
         progress_bar=not args.no_progress,
+        max_minutes=args.max_minutes,
     )
     config = json.loads((args.out / "train_config.json").read_text())
-    print(f"saved {path} ({config['wall_s']:.0f} s, {config['steps_per_s']:.1f} steps/s)")
+    print(
+        f"saved {path}: {config['trained_timesteps']} steps in {config['wall_s']:.0f} s "
+        f"({config['steps_per_s']:.1f} steps/s)"
+    )
     return 0
 
 

@@ -60,11 +60,14 @@ def test_command_line_with_another_reward_preset(tmp_path, capsys):
             "--env", "VSlam/ExploreSmall-v0", "--timesteps", "64", "--n-envs", "1",
             "--n-steps", "64", "--batch-size", "32", "--reward", "d_opt",
             "--checkpoint-every", "0", "--no-progress", "--out", str(tmp_path),
+            "--max-minutes", "0",
         ]
     )  # fmt: skip
     assert code == 0
     assert "saved" in capsys.readouterr().out
     config = json.loads((tmp_path / "train_config.json").read_text())
     assert config["reward"] == "d_opt" and config["env_id"] == "VSlam/ExploreSmall-v0"
+    assert config["trained_timesteps"] == 1  # the wall-clock limit stopped it at once
+    assert (tmp_path / "final_model.zip").is_file()
     monitor = (tmp_path / "monitor" / "0.monitor.csv").read_text()
     assert monitor.startswith("#") and vslam_gym.__version__ == config["vslam_gym"]
