@@ -16,6 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.append(str(ROOT))  # appended: the installed vslam_gym stays first
 
+from agents.evaluate_agents import evaluate_agent  # noqa: E402
 from agents.train_ppo import PpoSettings, main, train  # noqa: E402
 
 pytest.importorskip("stable_baselines3")
@@ -52,6 +53,13 @@ def test_ppo_smoke_run_saves_a_model_that_acts(tmp_path):
         obs, reward, terminated, truncated, info = env.step(action)
         assert np.isfinite(reward) and reward == pytest.approx(sum(info["rewards"].values()))
     env.close()
+    summary = evaluate_agent(
+        path, "VSlam/ExploreSmall-v0", episodes=1, seed=0, max_steps=8, progress=False,
+        out_dir=tmp_path / "eval",
+    )  # fmt: skip
+    episode = summary["per_episode"][0]
+    assert episode["steps"] == 8 and 0.0 <= episode["coverage"] <= 1.0
+    assert (tmp_path / "eval" / "metrics.json").is_file()
 
 
 def test_command_line_with_another_reward_preset(tmp_path, capsys):
