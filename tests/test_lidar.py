@@ -117,6 +117,36 @@ def test_obstacle_on_the_left_appears_at_positive_bearings_with_its_id():
     assert turned.ranges[90] == pytest.approx(2.5, abs=1e-12)
 
 
+def test_ray_geometry_lists_each_obstacle_boundary_in_world_order():
+    clockwise_box = PolygonObstacle(points=((0.0, 0.0), (0.0, 1.0), (2.0, 1.0), (2.0, 0.0)))
+    # A wall with a repeated vertex (a zero-length segment: caps, no sides) and a
+    # zero-thickness wall (sides on the centre line, no caps).
+    wall = WallObstacle(points=((5.0, 0.0), (5.0, 0.0), (5.0, 4.0)), thickness=0.2)
+    line = WallObstacle(points=((8.0, 0.0), (9.0, 0.0)), thickness=0.0)
+    disc = CircleObstacle(center=(-3.0, 1.0), radius=0.5)
+    world = World(
+        name="mixed",
+        robot=RobotSpec(start=(3.0, 6.0, 0.0)),
+        obstacles=(wall, clockwise_box, disc, line),
+    )
+    g = RayGeometry.from_world(world)
+    assert g.edge_ids.tolist() == [0, 0, 1, 1, 1, 1, 3, 3]
+    # Wall sides: right side a->b, then left side b->a, offset by the half thickness.
+    np.testing.assert_allclose(g.edge_start[:2], [[5.1, 0.0], [4.9, 4.0]], atol=1e-15)
+    np.testing.assert_allclose(g.edge_vector[:2], [[0.0, 4.0], [0.0, -4.0]], atol=1e-15)
+    # The clockwise box runs counter-clockwise (outward normals on the right).
+    box_start = g.edge_start[2:6]
+    assert box_start.tolist() == [[2.0, 0.0], [2.0, 1.0], [0.0, 1.0], [0.0, 0.0]]
+    e, f = g.edge_vector[2:6], np.roll(g.edge_vector[2:6], -1, axis=0)
+    assert np.all(e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0] > 0.0)  # turns left throughout
+    assert g.edge_start[6:].tolist() == [[8.0, 0.0], [9.0, 0.0]]
+    # Circles: the wall's three caps, then the disc; none for the zero-thickness line.
+    assert g.circle_ids.tolist() == [0, 0, 0, 2]
+    assert g.circle_center.tolist() == [[5.0, 0.0], [5.0, 0.0], [5.0, 4.0], [-3.0, 1.0]]
+    assert g.circle_radius.tolist() == pytest.approx([0.1, 0.1, 0.1, 0.5])
+    assert g.edge_ids.dtype == g.circle_ids.dtype == np.int64
+
+
 def _random_world(rng: np.random.Generator, n: int = 40) -> World:
     obstacles: list = [
         WallObstacle(

@@ -1,3 +1,5 @@
+import dataclasses
+import gc
 import math
 import pickle
 
@@ -126,6 +128,34 @@ def test_space_holds_tagged_static_shapes():
 
     assert space.point_query_nearest((2.0, 2.0), 0.0, OBSTACLE_QUERY_FILTER) is None
     assert space.point_query_nearest((0.5, 3.0), 0.0, OBSTACLE_QUERY_FILTER).shape.obstacle_id == 1
+    # Frictionless and inelastic (pymunk's defaults, relied upon by build_space).
+    assert all(shape.friction == 0.0 and shape.elasticity == 0.0 for shape in space.shapes)
+    # Points given as lists give the same shapes.
+    as_lists = PolygonObstacle(points=[list(p) for p in nonconvex.points])
+    again = build_space(dataclasses.replace(world, obstacles=(as_lists,)), PhysicsConfig())
+    vertices = [[tuple(v) for v in shape.get_vertices()] for shape in again.shapes]
+    assert vertices == [
+        [tuple(v) for v in shape.get_vertices()] for shape in space.shapes if shape.obstacle_id == 1
+    ]
+
+
+def test_polygon_pieces_are_reused_for_a_world_and_forgotten_with_it():
+    from vslam_gym.sim import physics
+
+    l_shape = PolygonObstacle(
+        points=((0.0, 0.0), (2.0, 0.0), (2.0, 1.0), (1.0, 1.0), (1.0, 2.0), (0.0, 2.0))
+    )
+    world = World(name="l", robot=RobotSpec(start=(5.0, 5.0, 0.0)), obstacles=(l_shape,))
+    spaces = [build_space(world, PhysicsConfig()) for _ in range(2)]
+    spaces.append(build_space(dataclasses.replace(world), PhysicsConfig()))  # an equal copy
+    vertices = [[[tuple(v) for v in s.get_vertices()] for s in space.shapes] for space in spaces]
+    assert len(vertices[0]) == 4  # the L-shape is four triangles
+    assert vertices[0] == vertices[1] == vertices[2]
+    key = (id(world), PhysicsConfig().geometry_tolerance)
+    assert key in physics._PIECES_BY_WORLD
+    del world
+    gc.collect()
+    assert key not in physics._PIECES_BY_WORLD
 
 
 def _area(points: np.ndarray) -> float:
@@ -153,6 +183,10 @@ def test_convex_pieces_cover_the_polygon_exactly():
 def test_bad_polygons_and_settings_raise():
     with pytest.raises(PhysicsError, match="not simple"):
         convex_pieces(((0.0, 0.0), (1.0, 1.0), (1.0, 0.0), (0.0, 1.0)))
+    # A pentagram turns left at every vertex but winds around twice.
+    angles = 2 * np.pi * np.arange(0, 10, 2) / 5
+    with pytest.raises(PhysicsError, match="not simple"):
+        convex_pieces(np.stack([np.cos(angles), np.sin(angles)], axis=1))
     with pytest.raises(PhysicsError, match="zero area"):
         convex_pieces(((0.0, 0.0), (1.0, 0.0), (2.0, 0.0)))
     with pytest.raises(PhysicsError, match="control_period"):

@@ -8,8 +8,13 @@ import pytest
 from vslam_gym.config_utils import UnknownKeyError
 from vslam_gym.sim import shapes
 from vslam_gym.sim.random_world import (
+    CLUTTER_KINDS,
     RandomWorldError,
     RandomWorldParams,
+    _Candidates,
+    _draw_kinds,
+    _kind_cdf,
+    _uniform_in_box,
     generate_random_world,
 )
 from vslam_gym.sim.world import PolygonObstacle, WallObstacle
@@ -52,6 +57,48 @@ def test_passed_generator_is_advanced_not_copied():
     rng = np.random.default_rng(5)
     first, second = generate_random_world(rng), generate_random_world(rng)
     assert first != second
+
+
+@pytest.mark.parametrize("weights", [(0.35, 0.2, 0.2, 0.25), (0.0, 1.0, 0.0, 3.0), (1, 1, 1, 1)])
+def test_fast_draws_are_the_generator_draws_they_replace(weights):
+    # The generator's stream (and so every world) is what rng.choice and rng.uniform with
+    # per-coordinate bounds would give; the next draw shows both used the same numbers.
+    params = RandomWorldParams(kind_weights=weights)
+    p = np.asarray(params.kind_weights) / sum(params.kind_weights)
+    fast, reference = np.random.default_rng(11), np.random.default_rng(11)
+    for n in (1, 64, 500):
+        kinds = _draw_kinds(fast, _kind_cdf(params), n)
+        assert np.array_equal(kinds, reference.choice(len(CLUTTER_KINDS), size=n, p=p))
+        low, high = (0.075, 1.0), (19.925, 14.5)
+        for size in (2, (n, 2)):
+            box = _uniform_in_box(fast, low, high, size)
+            assert np.array_equal(box, reference.uniform(low, high, size=size))
+        assert fast.random() == reference.random()
+    assert set(np.unique(kinds)) == {k for k, w in enumerate(weights) if w > 0}
+
+
+@pytest.mark.parametrize("rotate", [True, False])
+def test_candidates_are_drawn_as_one_generator_call_per_field(rotate):
+    params = RandomWorldParams(rotate_clutter=rotate)
+    fast, reference = np.random.default_rng(2), np.random.default_rng(2)
+    p = np.asarray(params.kind_weights) / sum(params.kind_weights)
+    inset = params.wall_thickness / 2
+    for _ in range(3):
+        cand = _Candidates.draw(params, fast, 64, _kind_cdf(params))
+        kind = reference.choice(len(CLUTTER_KINDS), size=64, p=p)
+        box = (params.width - inset, params.height - inset)
+        center = reference.uniform((inset, inset), box, size=(64, 2))
+        size = reference.uniform(*params.clutter_size, size=(64, 2))
+        arm = reference.uniform(*params.l_arm_fraction, size=64)
+        angle = reference.uniform(0.0, 2 * np.pi, size=64) if rotate else np.zeros(64)
+        post_radius = reference.uniform(*params.post_radius, size=64)
+        for got, want in zip(
+            (cand.kind, cand.center, cand.size, cand.arm, cand.angle, cand.post_radius),
+            (kind, center, size, arm, angle, post_radius),
+            strict=True,
+        ):
+            assert np.array_equal(got, want)
+    assert fast.random() == reference.random()
 
 
 @pytest.mark.parametrize(("n_obstacles", "n_rooms"), [(0, 1), (10, 2), (30, 4), (100, 4)])

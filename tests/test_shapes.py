@@ -26,6 +26,24 @@ def test_point_segment_distance_values_and_degenerate_segments():
     assert shapes.point_segment_distance([3.0, 4.0], [0.0, 0.0], [0.0, 0.0])[0, 0] == 5.0
 
 
+def test_point_segment_distance_of_a_subset_is_bitwise_the_same():
+    rng = np.random.default_rng(6)
+    points = rng.uniform(-5.0, 5.0, (64, 2))
+    a = rng.uniform(-5.0, 5.0, (30, 2))
+    b = a + rng.uniform(-2.0, 2.0, (30, 2))
+    b[::7] = a[::7]  # some points
+    full = shapes.point_segment_distance(points, a, b)
+    rows, cols = rng.permutation(64)[:9], np.array([0, 7, 13, 29])
+    part = shapes.point_segment_distance(points[rows], a[cols], b[cols])
+    assert np.array_equal(part, full[np.ix_(rows, cols)])
+    # Against sampling the segments densely (at most 1.5 mm apart).
+    t = np.linspace(0.0, 1.0, 2001)[:, None, None]
+    dense = a[None] + t * (b - a)[None]  # (t, segment, 2)
+    brute = np.linalg.norm(points[:16, None, None, :] - dense[None], axis=-1).min(axis=1)
+    assert np.abs(full[:16] - brute).max() < 1e-3
+    assert np.all(full[:16] <= brute + 1e-12)
+
+
 @pytest.mark.parametrize(
     ("p0", "p1", "q0", "q1", "hit"),
     [
@@ -81,6 +99,45 @@ def test_simplicity(points, simple):
 def test_self_intersection_reports_the_crossing_edges():
     assert shapes.polygon_self_intersection(((0, 0), (1, 1), (1, 0), (0, 1))) == (0, 2)
     assert shapes.polygon_self_intersection(U_SHAPE.points) is None
+
+
+def _test_polygons(rng: np.random.Generator, count: int) -> list[np.ndarray]:
+    """Star-shaped (simple), random (mostly crossing) and grid polygons (repeated and
+    collinear vertices, touching edges), 3 to 11 vertices."""
+    polygons = []
+    for i in range(count):
+        k = int(rng.integers(3, 12))
+        if i % 3 == 0:
+            angle = 2 * np.pi * (np.arange(k) + rng.uniform(0.0, 0.8, k)) / k
+            radius = rng.uniform(0.3, 1.0, k)
+            polygons.append(np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1))
+        elif i % 3 == 1:
+            polygons.append(rng.uniform(-1.0, 1.0, (k, 2)))
+        else:
+            polygons.append(rng.integers(0, 4, (k, 2)).astype(float))
+    return polygons
+
+
+def test_short_and_long_polygon_paths_find_the_same_crossing(monkeypatch):
+    polygons = _test_polygons(np.random.default_rng(4), 600)
+    monkeypatch.setattr(shapes, "_SMALL_POLYGON", 10**6)  # plain Python loop
+    loop = [shapes.polygon_self_intersection(p) for p in polygons]
+    monkeypatch.setattr(shapes, "_SMALL_POLYGON", 0)  # numpy, vectorised
+    vectorised = [shapes.polygon_self_intersection(p) for p in polygons]
+    assert loop == vectorised
+    assert 100 < sum(r is None for r in loop) < 500  # both simple and crossing cases
+
+
+def test_shoelace_sum_is_twice_the_area_whatever_the_first_vertex():
+    assert shapes.shoelace_sum(SQUARE.points) == 8.0
+    assert shapes.shoelace_sum(SQUARE.points[::-1]) == -8.0
+    assert shapes.shoelace_sum(U_SHAPE.points) == 14.0
+    rng = np.random.default_rng(2)
+    for polygon in _test_polygons(rng, 60):
+        ring = (polygon * 1e3 + 1e6).tolist()  # far from the origin: terms cancel heavily
+        sums = {shapes.shoelace_sum(ring[k:] + ring[:k]) for k in range(len(ring))}
+        assert len(sums) == 1  # exactly rounded, so independent of the summation order
+        assert sums.pop() == pytest.approx(2.0 * shapes.polygon_area(ring), rel=1e-6, abs=1e-3)
 
 
 def test_signed_distances_of_each_kind():

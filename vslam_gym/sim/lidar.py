@@ -35,7 +35,9 @@ of them).
 
 from __future__ import annotations
 
+import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -43,6 +45,7 @@ import numpy as np
 import pymunk
 
 from vslam_gym.sim.physics import OBSTACLE_QUERY_FILTER
+from vslam_gym.sim.shapes import shoelace_sum
 from vslam_gym.sim.world import CircleObstacle, LidarSpec, PolygonObstacle, WallObstacle, World
 
 
@@ -120,57 +123,98 @@ class RayGeometry:
     @classmethod
     def from_world(cls, world: World) -> RayGeometry:
         """Extract the boundary of the world's obstacles, as the physics builds them."""
-        starts: list[np.ndarray] = []
-        ends: list[np.ndarray] = []
+        obstacles = world.obstacles
+        walls = _WallEdges([o for o in obstacles if isinstance(o, WallObstacle)])
+        # Obstacle rings are short: plain Python lists, one array conversion at the end.
+        starts: list[Sequence[float]] = []
+        ends: list[Sequence[float]] = []
         edge_ids: list[int] = []
-        centers: list[np.ndarray] = []
+        centers: list[Sequence[float]] = []
         radii: list[float] = []
         circle_ids: list[int] = []
-
-        def add_edges(ring_start: np.ndarray, ring_end: np.ndarray, obstacle_id: int) -> None:
-            starts.append(ring_start)
-            ends.append(ring_end)
-            edge_ids.extend([obstacle_id] * len(ring_start))
-
-        for obstacle_id, obstacle in enumerate(world.obstacles):
+        n_walls = 0
+        for obstacle_id, obstacle in enumerate(obstacles):
             if isinstance(obstacle, CircleObstacle):
-                centers.append(np.asarray(obstacle.center, dtype=float))
+                centers.append((float(obstacle.center[0]), float(obstacle.center[1])))
                 radii.append(float(obstacle.radius))
                 circle_ids.append(obstacle_id)
             elif isinstance(obstacle, PolygonObstacle):
-                ring = np.asarray(obstacle.points, dtype=float)
-                x, y = ring[:, 0], ring[:, 1]
-                if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) < 0.0:
-                    ring = ring[::-1]  # counter-clockwise: outward normal on the right
-                add_edges(ring, np.roll(ring, -1, axis=0), obstacle_id)
+                ring = list(obstacle.points)
+                if shoelace_sum(ring) < 0.0:
+                    ring.reverse()  # counter-clockwise: outward normal on the right
+                starts.extend(ring)
+                ends.extend(ring[1:] + ring[:1])
+                edge_ids.extend([obstacle_id] * len(ring))
             elif isinstance(obstacle, WallObstacle):
-                points = np.asarray(obstacle.points, dtype=float)
-                radius = float(obstacle.thickness) / 2.0
-                a, b = points[:-1], points[1:]
-                length = np.hypot(*(b - a).T)
-                keep = length > 0.0
-                a, b, length = a[keep], b[keep], length[keep]
-                normal = np.stack([(b - a)[:, 1], -(b - a)[:, 0]], axis=1) / length[:, None]
-                # Capsule sides: right side runs a->b, left side b->a (outward on the right).
-                add_edges(a + radius * normal, b + radius * normal, obstacle_id)
-                add_edges(b - radius * normal, a - radius * normal, obstacle_id)
+                wall_starts, wall_ends, caps, radius = walls.edges(n_walls)
+                n_walls += 1
+                starts.extend(wall_starts)
+                ends.extend(wall_ends)
+                edge_ids.extend([obstacle_id] * len(wall_starts))
                 if radius > 0.0:
-                    for p in points:
-                        centers.append(p)
-                        radii.append(radius)
-                        circle_ids.append(obstacle_id)
+                    centers.extend(caps)
+                    radii.extend([radius] * len(caps))
+                    circle_ids.extend([obstacle_id] * len(caps))
             else:
                 raise LidarError(f"unknown obstacle type {type(obstacle).__name__}")
-        start = np.concatenate(starts) if starts else np.zeros((0, 2))
-        end = np.concatenate(ends) if ends else np.zeros((0, 2))
+        start, end = _point_array(starts), _point_array(ends)
         return cls(
             edge_start=start,
             edge_vector=end - start,
             edge_ids=np.asarray(edge_ids, dtype=np.int64),
-            circle_center=np.asarray(centers, dtype=float).reshape(-1, 2),
+            circle_center=_point_array(centers),
             circle_radius=np.asarray(radii, dtype=float),
             circle_ids=np.asarray(circle_ids, dtype=np.int64),
         )
+
+
+def _point_array(points: list[Sequence[float]]) -> np.ndarray:
+    """``(n, 2)`` float array of a list of points (faster than ``np.array`` on tuples)."""
+    flat = itertools.chain.from_iterable(points)
+    return np.fromiter(flat, dtype=float, count=2 * len(points)).reshape(-1, 2)
+
+
+class _WallEdges:
+    """The capsule sides of all wall segments, computed in one vectorised pass.
+
+    Args:
+        walls: the wall obstacles, in world order.
+    """
+
+    def __init__(self, walls: list[WallObstacle]) -> None:
+        points = [np.asarray(w.points, dtype=float).reshape(-1, 2) for w in walls]
+        n_segments = [max(len(p) - 1, 0) for p in points]
+        self._caps = [p.tolist() for p in points]
+        self._radius = [float(w.thickness) / 2.0 for w in walls]
+        if not walls:
+            return
+        a = np.concatenate([p[:-1] for p in points])
+        b = np.concatenate([p[1:] for p in points])
+        radius = np.repeat(self._radius, n_segments)[:, None]
+        length = np.hypot(*(b - a).T)
+        keep = length > 0.0  # zero-length segments have no sides (their caps remain)
+        # Wall k owns the kept segments _bounds[k]:_bounds[k + 1].
+        self._bounds = np.concatenate([[0], np.cumsum(keep)])[np.cumsum([0, *n_segments])]
+        a, b, length, radius = a[keep], b[keep], length[keep], radius[keep]
+        normal = np.stack([(b - a)[:, 1], -(b - a)[:, 0]], axis=1) / length[:, None]
+        # Capsule sides: right side runs a->b, left side b->a (outward on the right).
+        self._right = ((a + radius * normal).tolist(), (b + radius * normal).tolist())
+        self._left = ((b - radius * normal).tolist(), (a - radius * normal).tolist())
+
+    def edges(
+        self, k: int
+    ) -> tuple[list[list[float]], list[list[float]], list[list[float]], float]:
+        """Return the sides and caps of wall ``k``.
+
+        Returns:
+            ``(starts, ends, caps, radius)``: edge starts and ends [m] (right sides, then
+            left sides), the polyline vertices [m] (centres of the caps) and the cap
+            radius [m].
+        """
+        lo, hi = int(self._bounds[k]), int(self._bounds[k + 1])
+        starts = self._right[0][lo:hi] + self._left[0][lo:hi]
+        ends = self._right[1][lo:hi] + self._left[1][lo:hi]
+        return starts, ends, self._caps[k], self._radius[k]
 
 
 class NumpyRayCaster:

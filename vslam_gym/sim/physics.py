@@ -38,8 +38,8 @@ A new space is built for every episode (cached contact impulses are hidden state
 
 from __future__ import annotations
 
-import functools
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -156,64 +156,66 @@ class _DriveCommand:
         body.angular_velocity = self.omega
 
 
-Point = tuple[float, float]
+_Point = tuple[float, float]  # (x [m], y [m])
 
 
-def _cross(o: Point, a: Point, b: Point) -> float:
+def _cross(o: _Point, a: _Point, b: _Point) -> float:
     """z-component of ``(a - o) x (b - o)``."""
     return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 
 
-def _clean_ring(points: object, tolerance: float) -> list[Point]:
+def _clean_ring(points: object, tolerance: float) -> list[_Point]:
     """Counter-clockwise vertex ring without repeated or collinear vertices.
 
-    Vertex rings of obstacles are short, so plain Python floats are faster than numpy.
+    The orientation is the exact sign of :func:`shapes.shoelace_sum`. Vertex rings of
+    obstacles are short, so plain Python floats are faster than numpy here.
     """
-    ring = [(x, y) for x, y in shapes.as_points(points).tolist()]
-    if shapes.shoelace_sum(ring) < 0.0:
-        ring.reverse()
+    if isinstance(points, tuple) and all(len(p) == 2 for p in points):  # a world's points
+        ring = [(float(x), float(y)) for x, y in points]
+    else:
+        ring = [(x, y) for x, y in shapes.as_points(points).tolist()]
     if not ring:
         return ring
-    xs, ys = [p[0] for p in ring], [p[1] for p in ring]
+    if shapes.shoelace_sum(ring) < 0.0:
+        ring.reverse()
+    xs, ys = zip(*ring, strict=True)
     scale = max(max(xs) - min(xs), max(ys) - min(ys))
     limit = tolerance * scale * scale
-    changed = True
-    while changed and len(ring) >= 3:
-        changed = False
+    while len(ring) >= 3:  # drop the first flat vertex, until there is none
         n = len(ring)
         for i in range(n):
             if abs(_cross(ring[i - 1], ring[i], ring[(i + 1) % n])) <= limit:
                 del ring[i]
-                changed = True
                 break
+        else:
+            break
     return ring
 
 
-def _point_in_triangle(p: Point, a: Point, b: Point, c: Point) -> bool:
+def _point_in_triangle(p: _Point, a: _Point, b: _Point, c: _Point) -> bool:
     """``p`` inside or on the boundary of the counter-clockwise triangle ``abc``."""
     return _cross(a, b, p) >= 0.0 and _cross(b, c, p) >= 0.0 and _cross(c, a, p) >= 0.0
 
 
-def _is_convex(ring: list[Point]) -> bool:
-    """Whether a ring turns left at every vertex and goes around once (so it is simple).
+def _is_convex(ring: list[_Point]) -> bool:
+    """Whether a ring of ``>= 3`` vertices turns left at every vertex and goes around once.
 
     A ring that turns left everywhere turns by ``2 pi k`` in total, ``k`` the number of
-    times it winds around; ``k = 1`` is a convex polygon, ``k >= 2`` a star that crosses
-    itself.
+    times it winds around; ``k = 1`` is a convex (so simple) polygon, ``k >= 2`` a star
+    that crosses itself.
     """
-    n = len(ring)
     turning = 0.0
-    for i in range(n):
-        prev, cur, nxt = ring[i - 1], ring[i], ring[(i + 1) % n]
-        cross = _cross(prev, cur, nxt)
+    (px, py), (cx, cy) = ring[-2], ring[-1]  # previous and current vertex
+    for nx, ny in ring:
+        cross = (cx - px) * (ny - py) - (cy - py) * (nx - px)  # _cross(prev, cur, next)
         if cross <= 0.0:
             return False
-        dot = (cur[0] - prev[0]) * (nxt[0] - cur[0]) + (cur[1] - prev[1]) * (nxt[1] - cur[1])
-        turning += math.atan2(cross, dot)
+        turning += math.atan2(cross, (cx - px) * (nx - cx) + (cy - py) * (ny - cy))
+        px, py, cx, cy = cx, cy, nx, ny
     return turning < 3.0 * math.pi  # 2 pi, not 4 pi or more
 
 
-def _convex_rings(points: object, tolerance: float) -> list[list[Point]]:
+def _convex_rings(points: object, tolerance: float) -> list[list[_Point]]:
     """:func:`convex_pieces` as lists of vertex tuples."""
     ring = _clean_ring(points, tolerance)
     if len(ring) < 3:
@@ -223,7 +225,7 @@ def _convex_rings(points: object, tolerance: float) -> list[list[Point]]:
     if not shapes.is_simple_polygon(ring):
         raise PhysicsError(f"polygon {np.asarray(points).tolist()} is not simple")
     remaining = list(range(len(ring)))
-    pieces: list[list[Point]] = []
+    pieces: list[list[_Point]] = []
     while len(remaining) > 3:
         m = len(remaining)
         for k in range(m):
@@ -231,8 +233,9 @@ def _convex_rings(points: object, tolerance: float) -> list[list[Point]]:
             a, b, c = ring[i0], ring[i1], ring[i2]
             if _cross(a, b, c) <= 0.0:  # reflex or flat corner: not an ear
                 continue
-            others = (ring[j] for j in remaining if j not in (i0, i1, i2))
-            if any(_point_in_triangle(p, a, b, c) for p in others):
+            if any(
+                _point_in_triangle(ring[j], a, b, c) for j in remaining if j not in (i0, i1, i2)
+            ):
                 continue
             pieces.append([a, b, c])
             remaining.pop(k)
@@ -264,20 +267,45 @@ def convex_pieces(
     return [np.array(piece) for piece in _convex_rings(points, tolerance)]
 
 
-@functools.lru_cache(maxsize=4096)
-def _cached_convex_rings(
-    points: tuple[tuple[float, float], ...], tolerance: float
-) -> tuple[tuple[Point, ...], ...]:
-    """:func:`convex_pieces` as tuples, cached: a fixed world is rebuilt at every reset."""
-    return tuple(tuple(piece) for piece in _convex_rings(points, tolerance))
+_PolygonPieces = list[list[_Point]] | None  # convex pieces of an obstacle (None: no polygon)
+_PIECES_BY_WORLD: dict[tuple[int, float], tuple[weakref.ref[World], list[_PolygonPieces]]] = {}
+"""Convex pieces of the polygons of each live world, by ``(id(world), tolerance)``: a
+fixed world's space is rebuilt at every reset. Keyed by identity, not by value, so that
+a stream of random worlds neither hashes every polygon nor keeps a cache of them; an
+entry goes when its world does."""
+
+
+def _world_pieces(world: World, tolerance: float) -> list[_PolygonPieces]:
+    """The convex pieces of each obstacle of ``world`` (``None`` for non-polygons)."""
+    key = (id(world), tolerance)
+    entry = _PIECES_BY_WORLD.get(key)
+    if entry is not None and entry[0]() is world:
+        return entry[1]
+    pieces = [
+        _convex_rings(o.points, tolerance) if isinstance(o, PolygonObstacle) else None
+        for o in world.obstacles
+    ]
+
+    def forget(ref: weakref.ref[World]) -> None:
+        if _PIECES_BY_WORLD.get(key, (None,))[0] is ref:
+            del _PIECES_BY_WORLD[key]
+
+    try:
+        _PIECES_BY_WORLD[key] = (weakref.ref(world, forget), pieces)
+    except TypeError:  # not weakly referenceable: not cached
+        pass
+    return pieces
 
 
 def _obstacle_shapes(
     obstacle: PolygonObstacle | CircleObstacle | WallObstacle,
     body: pymunk.Body,
-    config: PhysicsConfig,
+    pieces: _PolygonPieces,
 ) -> list[pymunk.Shape]:
-    """Make the pymunk shapes of one static obstacle (not yet tagged or added)."""
+    """Make the pymunk shapes of one static obstacle (not yet tagged or added).
+
+    ``pieces``: the convex pieces of a polygon (:func:`_convex_rings`).
+    """
     if isinstance(obstacle, CircleObstacle):
         return [pymunk.Circle(body, float(obstacle.radius), tuple(map(float, obstacle.center)))]
     if isinstance(obstacle, WallObstacle):
@@ -286,11 +314,7 @@ def _obstacle_shapes(
         return [
             pymunk.Segment(body, a, b, radius) for a, b in zip(points[:-1], points[1:], strict=True)
         ]
-    if isinstance(obstacle, PolygonObstacle):
-        try:
-            pieces = _cached_convex_rings(obstacle.points, config.geometry_tolerance)
-        except TypeError:  # unhashable points (lists): no caching
-            pieces = _convex_rings(obstacle.points, config.geometry_tolerance)
+    if isinstance(obstacle, PolygonObstacle) and pieces is not None:
         return [pymunk.Poly(body, piece) for piece in pieces]
     raise PhysicsError(f"unknown obstacle type {type(obstacle).__name__}")
 
@@ -304,13 +328,16 @@ def build_space(world: World, config: PhysicsConfig) -> pymunk.Space:
     space = pymunk.Space()
     space.iterations = int(config.solver_iterations)
     space.collision_slop = float(config.collision_slop)
+    body = space.static_body
+    obstacle_filter = pymunk.ShapeFilter(categories=OBSTACLE_CATEGORY)
+    pieces = _world_pieces(world, config.geometry_tolerance)
     shapes: list[pymunk.Shape] = []
     for obstacle_id, obstacle in enumerate(world.obstacles):
-        for shape in _obstacle_shapes(obstacle, space.static_body, config):
+        for shape in _obstacle_shapes(obstacle, body, pieces[obstacle_id]):
+            # Friction and elasticity keep pymunk's defaults, 0 (frictionless, inelastic;
+            # tests check it): setting them costs time at every reset.
             shape.obstacle_id = obstacle_id
-            shape.friction = 0.0
-            shape.elasticity = 0.0
-            shape.filter = pymunk.ShapeFilter(categories=OBSTACLE_CATEGORY)
+            shape.filter = obstacle_filter
             shapes.append(shape)
     space.add(*shapes)
     return space

@@ -247,6 +247,36 @@ def _subtract(lo: float, hi: float, holes: list[tuple[float, float]]) -> list[tu
     return segments
 
 
+def _uniform_in_box(
+    rng: np.random.Generator, low: tuple[float, float], high: tuple[float, float], size: object
+) -> np.ndarray:
+    """``rng.uniform(low, high, size)`` for per-coordinate bounds, without its overhead.
+
+    ``Generator.uniform`` with array bounds computes ``low + (high - low) * u`` from the
+    next ``rng.random`` draws; so does this, drawing the same numbers (tests check it)
+    several times faster for small sizes.
+    """
+    lo = np.asarray(low, dtype=float)
+    return lo + (np.asarray(high, dtype=float) - lo) * rng.random(size)
+
+
+def _kind_cdf(p: RandomWorldParams) -> np.ndarray:
+    """Cumulative distribution of the clutter kinds, built as ``Generator.choice`` does."""
+    cdf = (np.asarray(p.kind_weights) / sum(p.kind_weights)).cumsum()
+    cdf /= cdf[-1]
+    return cdf
+
+
+def _draw_kinds(rng: np.random.Generator, cdf: np.ndarray, n: int) -> np.ndarray:
+    """``n`` clutter kinds (indices into :data:`CLUTTER_KINDS`) drawn from ``cdf``.
+
+    The same draws as ``rng.choice(len(cdf), size=n, p=weights)`` (one ``rng.random``
+    per kind, inverted through the cumulative weights; tests check it), without the
+    argument checks that make it slow for small sizes.
+    """
+    return cdf.searchsorted(rng.random(n), side="right")
+
+
 def _pick(rng: np.random.Generator, intervals: list[tuple[float, float]]) -> float:
     """Uniform sample from a union of disjoint intervals."""
     lengths = np.array([e - s for s, e in intervals])
@@ -344,7 +374,7 @@ def _route(
     def visit(room: int, parent: int) -> None:
         x0, y0, x1, y1 = rooms[room]
         for _ in range(p.waypoints_per_room):
-            out.append(rng.uniform((x0 + m, y0 + m), (x1 - m, y1 - m)))
+            out.append(_uniform_in_box(rng, (x0 + m, y0 + m), (x1 - m, y1 - m), 2))
         for j in rng.permutation(len(neighbours[room])):
             other, here, there = neighbours[room][int(j)]
             if other == parent:
@@ -360,9 +390,18 @@ def _route(
 _BATCH = 64  # clutter candidates drawn (and tested vectorised) at a time
 
 
-def _rotate(points: np.ndarray, angle: float, center: np.ndarray) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return points @ np.array([[c, s], [-s, c]]) + center
+def _distances(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``(n, m)`` distances [m] between points ``u`` ``(n, 2)`` and ``v`` ``(m, 2)``.
+
+    The arithmetic of ``np.linalg.norm(u[:, None] - v[None], axis=-1)``, without its
+    slow reduction over an axis of length 2.
+    """
+    dx = u[:, 0:1] - v[:, 0]
+    dy = u[:, 1:2] - v[:, 1]
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return np.sqrt(dx, out=dx)
 
 
 @dataclass(frozen=True)
@@ -377,47 +416,85 @@ class _Candidates:
     post_radius: np.ndarray  # [m]
 
     @classmethod
-    def draw(cls, p: RandomWorldParams, rng: np.random.Generator, n: int) -> _Candidates:
-        weights = np.asarray(p.kind_weights) / sum(p.kind_weights)
+    def draw(
+        cls, p: RandomWorldParams, rng: np.random.Generator, n: int, kind_cdf: np.ndarray
+    ) -> _Candidates:
+        """Draw ``n`` candidates; ``kind_cdf`` from :func:`_kind_cdf`.
+
+        The numbers and arithmetic of one ``rng.choice`` (kinds) and one ``rng.uniform``
+        call per field, in the order kinds, centres, sizes, arms, angles (only if rotated)
+        and post radii (tests check it), but from a single ``rng.random`` call: each field
+        is ``low + (high - low) * u``, kinds are ``u`` inverted through ``kind_cdf``.
+        """
+        u = rng.random((8 if p.rotate_clutter else 7) * n)
         inset = p.wall_thickness / 2
+        low = np.array([inset, inset])
+        high = np.array([p.width - inset, p.height - inset])
+        (size_low, size_high), (arm_low, arm_high) = p.clutter_size, p.l_arm_fraction
+        post_low, post_high = p.post_radius
         return cls(
-            kind=rng.choice(len(CLUTTER_KINDS), size=n, p=weights),
-            center=rng.uniform((inset, inset), (p.width - inset, p.height - inset), size=(n, 2)),
-            size=rng.uniform(*p.clutter_size, size=(n, 2)),
-            arm=rng.uniform(*p.l_arm_fraction, size=n),
-            angle=rng.uniform(0.0, 2 * math.pi, size=n) if p.rotate_clutter else np.zeros(n),
-            post_radius=rng.uniform(*p.post_radius, size=n),
+            kind=kind_cdf.searchsorted(u[:n], side="right"),
+            center=low + (high - low) * u[n : 3 * n].reshape(n, 2),
+            size=size_low + (size_high - size_low) * u[3 * n : 5 * n].reshape(n, 2),
+            arm=arm_low + (arm_high - arm_low) * u[5 * n : 6 * n],
+            angle=2 * math.pi * u[6 * n : 7 * n] if p.rotate_clutter else np.zeros(n),
+            post_radius=post_low + (post_high - post_low) * u[-n:],
         )
 
     @property
     def bounding_radius(self) -> np.ndarray:
         """Radius [m] of a circle about ``center`` that holds each candidate."""
-        kind = self.kind
-        return np.select(
-            [kind == CLUTTER_KINDS.index("post"), kind == CLUTTER_KINDS.index("disc")],
-            [self.post_radius * np.sqrt(2.0), self.size[:, 0] / 2],
-            np.hypot(self.size[:, 0], self.size[:, 1]) / 2,
+        kind, width, height = self.kind, self.size[:, 0], self.size[:, 1]
+        radius = np.where(
+            kind == CLUTTER_KINDS.index("disc"), width / 2, np.hypot(width, height) / 2
+        )
+        return np.where(
+            kind == CLUTTER_KINDS.index("post"), self.post_radius * math.sqrt(2.0), radius
         )
 
-    def obstacle(self, j: int) -> Obstacle:
-        """Candidate ``j`` as an obstacle."""
-        kind = CLUTTER_KINDS[int(self.kind[j])]
-        center = (float(self.center[j, 0]), float(self.center[j, 1]))
-        if kind == "post":  # a small square post (corners for the line landmarks)
-            r = float(self.post_radius[j])
-            local = np.array([[-r, -r], [r, -r], [r, r], [-r, r]])
-            pts = _rotate(local, float(self.angle[j]), self.center[j])
-            return PolygonObstacle(points=tuple((float(x), float(y)) for x, y in pts))
+    def rows(self, js: np.ndarray) -> list[list[float]]:
+        """Candidates ``js`` as rows ``[kind, x, y, width, height, arm, angle, post_radius]``."""
+        columns = (self.kind, self.center, self.size, self.arm, self.angle, self.post_radius)
+        return np.column_stack(columns)[js].tolist()
+
+
+def _clutter_obstacles(rows: list[list[float]]) -> list[Obstacle]:
+    """Clutter objects from candidate rows (:meth:`_Candidates.rows`), in that order.
+
+    A polygon's corners are rotated by ``angle`` about the bounding-box centre and moved
+    there: ``corners @ [[c, s], [-s, c]] + center``, one stacked product per vertex count
+    (numpy multiplies each stacked pair exactly as it would alone).
+    """
+    out: dict[int, Obstacle] = {}  # by position in `rows`
+    # Polygons by vertex count: positions in `rows`, centres, corners, rotation matrices.
+    groups: dict[int, tuple[list[int], list[object], list[object], list[object]]] = {}
+    for i, (kind_index, x, y, w, h, arm, angle, post_radius) in enumerate(rows):
+        kind = CLUTTER_KINDS[int(kind_index)]
         if kind == "disc":
-            return CircleObstacle(center=center, radius=float(self.size[j, 0]) / 2)
-        w, h = (float(v) for v in self.size[j])
-        if kind == "box":
-            local = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
-        else:
-            a = float(self.arm[j]) * min(w, h)
-            local = np.array([[0.0, 0.0], [w, 0.0], [w, a], [a, a], [a, h], [0.0, h]])
-        pts = _rotate(local - np.array([w, h]) / 2, float(self.angle[j]), self.center[j])
-        return PolygonObstacle(points=tuple((float(x), float(y)) for x, y in pts))
+            out[i] = CircleObstacle(center=(x, y), radius=w / 2)
+            continue
+        if kind == "post":  # a small square post (corners for the line landmarks)
+            r = post_radius
+            corners = [(-r, -r), (r, -r), (r, r), (-r, r)]
+        else:  # corners relative to the centre of the bounding box
+            if kind == "box":
+                corners = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)]
+            else:
+                a = arm * min(w, h)
+                corners = [(0.0, 0.0), (w, 0.0), (w, a), (a, a), (a, h), (0.0, h)]
+            half_w, half_h = w / 2, h / 2
+            corners = [(cx - half_w, cy - half_h) for cx, cy in corners]
+        c, s = math.cos(angle), math.sin(angle)
+        group = groups.setdefault(len(corners), ([], [], [], []))
+        group[0].append(i)
+        group[1].append([x, y])
+        group[2].append(corners)
+        group[3].append([[c, s], [-s, c]])
+    for positions, center, corners, rotation in groups.values():
+        points = np.matmul(np.array(corners), np.array(rotation)) + np.array(center)[:, None, :]
+        for i, polygon in zip(positions, points.tolist(), strict=True):
+            out[i] = PolygonObstacle(points=tuple(map(tuple, polygon)))
+    return [out[i] for i in range(len(rows))]
 
 
 def _place_clutter(
@@ -439,18 +516,19 @@ def _place_clutter(
     fixed_need = np.concatenate(  # capsule radius + demanded gap
         [np.concatenate([c[2] for c in caps]) + p.min_gap, np.full(len(closed) - 1, route_gap)]
     )
-    centers = np.empty((0, 2))
-    radii = np.empty(0)
-    placed: list[Obstacle] = []
+    # The clutter placed so far: candidate rows, and bounding circles (first n_placed).
+    placed: list[list[float]] = []
+    placed_center = np.empty((p.n_obstacles, 2))
+    placed_radius = np.empty(p.n_obstacles)
     # The mix of kinds is drawn once; candidates of a kind whose quota is full are
     # skipped (otherwise small kinds, easier to place, would crowd out the others) for
     # the first 1/_QUOTA_PHASE of the attempt budget, after which a crowded floor takes
     # any kind.
-    weights = np.asarray(p.kind_weights) / sum(p.kind_weights)
+    kind_cdf = _kind_cdf(p)
     quota = np.bincount(
-        rng.choice(len(CLUTTER_KINDS), size=p.n_obstacles, p=weights), minlength=len(CLUTTER_KINDS)
-    )
-    count = np.zeros(len(CLUTTER_KINDS), dtype=int)
+        _draw_kinds(rng, kind_cdf, p.n_obstacles), minlength=len(CLUTTER_KINDS)
+    ).tolist()
+    count = [0] * len(CLUTTER_KINDS)
     budget = p.max_attempts * p.n_obstacles
     drawn = 0
     while len(placed) < p.n_obstacles:
@@ -459,30 +537,45 @@ def _place_clutter(
                 f"placed only {len(placed)} of {p.n_obstacles} clutter objects after {drawn} "
                 f"attempts; lower n_obstacles, clutter_size or min_gap, or enlarge the world"
             )
-        cand = _Candidates.draw(p, rng, _BATCH)
+        cand = _Candidates.draw(p, rng, _BATCH, kind_cdf)
         drawn += _BATCH
-        reach = cand.bounding_radius
-        d_fixed = shapes.point_segment_distance(cand.center, fixed_a, fixed_b)
+        quotas_hold = drawn < budget // _QUOTA_PHASE
+        # Narrow the batch down, cheapest test first, to the candidates of a kind with
+        # room in its quota (while quotas hold) that keep their gaps to the placed and
+        # the fixed obstacles. Each test is elementwise, so it gives the same verdict on
+        # any subset of the batch.
+        if quotas_hold:
+            index = np.flatnonzero(np.less(count, quota)[cand.kind])
+        else:
+            index = np.arange(_BATCH)
+        center, reach = cand.center[index], cand.bounding_radius[index]
+        if placed:
+            d = _distances(center, placed_center[: len(placed)])
+            ok = np.all(d - placed_radius[: len(placed)] - p.min_gap >= reach[:, None], axis=1)
+            index, center, reach = index[ok], center[ok], reach[ok]
+        d_fixed = shapes.point_segment_distance(center, fixed_a, fixed_b)
         ok = np.all(d_fixed - fixed_need[None, :] >= reach[:, None], axis=1)
-        if len(centers):
-            d = np.linalg.norm(cand.center[:, None, :] - centers[None, :, :], axis=-1)
-            ok &= np.all(d - radii[None, :] - p.min_gap >= reach[:, None], axis=1)
-        batch: list[int] = []
-        for j in np.flatnonzero(ok):
-            if count[cand.kind[j]] >= quota[cand.kind[j]] and drawn < budget // _QUOTA_PHASE:
+        index, center, reach = index[ok], center[ok], reach[ok]
+        # The survivors in batch order, each kept unless it clashes with one kept before
+        # it in this batch (clash[i][j]: candidate j is too close to candidate i).
+        d = _distances(center, center)
+        clash = (d - reach[:, None] - p.min_gap < reach[None, :]).tolist()
+        kept: list[int] = []
+        room = p.n_obstacles - len(placed)
+        for j, kind in enumerate(cand.kind[index].tolist()):
+            if quotas_hold and count[kind] >= quota[kind]:
                 continue
-            if batch:
-                d = np.linalg.norm(cand.center[batch] - cand.center[j], axis=1)
-                if np.any(d - reach[batch] - p.min_gap < reach[j]):
-                    continue
-            batch.append(int(j))
-            count[cand.kind[j]] += 1
-            placed.append(cand.obstacle(int(j)))
-            if len(placed) == p.n_obstacles:
+            if any(clash[i][j] for i in kept):
+                continue
+            kept.append(j)
+            count[kind] += 1
+            if len(kept) == room:
                 break
-        centers = np.vstack([centers, cand.center[batch]])
-        radii = np.concatenate([radii, reach[batch]])
-    return placed
+        n_before = len(placed)
+        placed.extend(cand.rows(index[kept]))
+        placed_center[n_before : len(placed)] = center[kept]
+        placed_radius[n_before : len(placed)] = reach[kept]
+    return _clutter_obstacles(placed)
 
 
 def generate_random_world(rng: np.random.Generator | int | None = None, **params: Any) -> World:
@@ -521,9 +614,7 @@ def generate_random_world(rng: np.random.Generator | int | None = None, **params
             start=(float(waypoints[0][0]), float(waypoints[0][1]), theta), radius=p.robot_radius
         ),
         obstacles=(*walls, *clutter),
-        route=Route(
-            waypoints=tuple((float(x), float(y)) for x, y in waypoints), loop=len(waypoints) > 1
-        ),
+        route=Route(waypoints=tuple(map(tuple, waypoints.tolist())), loop=len(waypoints) > 1),
         description=(
             f"Procedurally generated {p.width:g} m x {p.height:g} m world: {p.n_rooms} rooms, "
             f"{p.n_obstacles} clutter objects"

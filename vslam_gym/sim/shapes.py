@@ -17,6 +17,9 @@ distance to the boundary.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+
 import numpy as np
 
 from vslam_gym.sim.world import CircleObstacle, Obstacle, PolygonObstacle, WallObstacle
@@ -38,8 +41,13 @@ __all__ = [
     "segments_clearance",
     "segment_segment_distance",
     "segments_intersect",
+    "shoelace_sum",
     "signed_distance",
 ]
+
+_SMALL_POLYGON = 32
+"""Polygons with up to this many vertices are tested for simplicity in a plain Python loop,
+which is faster than the vectorised test for the short rings of obstacles."""
 
 
 def as_points(points: object) -> np.ndarray:
@@ -68,6 +76,9 @@ def _cross(ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray) -> np
 def point_segment_distance(points: object, a: object, b: object) -> np.ndarray:
     """Distances [m] from each point to each closed segment ``a[j]``-``b[j]``.
 
+    Every entry is computed by the same elementwise operations, so it does not depend on
+    which other points or segments are passed along (a subset gives the same values).
+
     Args:
         points: ``(n, 2)`` query points [m].
         a: ``(m, 2)`` segment starts [m].
@@ -76,15 +87,23 @@ def point_segment_distance(points: object, a: object, b: object) -> np.ndarray:
     Returns:
         ``(n, m)`` Euclidean distances [m].
     """
-    p = as_points(points)[:, None, :]
-    a_ = as_points(a)[None, :, :]
-    d = as_points(b)[None, :, :] - a_
-    length_sq = np.einsum("...i,...i->...", d, d)
-    safe = np.where(length_sq > 0.0, length_sq, 1.0)
-    t = np.clip(np.einsum("...i,...i->...", p - a_, d) / safe, 0.0, 1.0)
-    t = np.where(length_sq > 0.0, t, 0.0)
-    closest = a_ + t[..., None] * d
-    return np.linalg.norm(p - closest, axis=-1)
+    p, a_, b_ = as_points(points), as_points(a), as_points(b)
+    px, py = p[:, 0:1], p[:, 1:2]
+    ax, ay = a_[:, 0], a_[:, 1]
+    dx, dy = b_[:, 0] - ax, b_[:, 1] - ay
+    length_sq = dx * dx + dy * dy
+    proper = length_sq > 0.0  # else a point: the distance to `a`
+    t = (px - ax) * dx
+    t += (py - ay) * dy
+    t /= np.where(proper, length_sq, 1.0)
+    np.clip(t, 0.0, 1.0, out=t)
+    t[:, ~proper] = 0.0
+    ex = px - (ax + t * dx)  # the point minus the closest point of the segment
+    ey = py - (ay + t * dy)
+    ex *= ex
+    ey *= ey
+    ex += ey
+    return np.sqrt(ex, out=ex)
 
 
 def _orientation(*coords: np.ndarray) -> np.ndarray:
@@ -164,6 +183,21 @@ def point_in_polygon(points: object, polygon: object) -> np.ndarray:
     return (np.count_nonzero(crossings, axis=1) % 2) == 1
 
 
+def shoelace_sum(ring: Sequence[Sequence[float]]) -> float:
+    """Twice the signed area [m^2] of a vertex ring: positive if counter-clockwise.
+
+    The shoelace terms ``x_i y_(i+1) - x_(i+1) y_i`` are added with :func:`math.fsum`
+    (correctly rounded), so the sign is exact for the given terms and does not depend
+    on the summation order. Plain Python, for the short rings of obstacles.
+
+    Args:
+        ring: ``(k, 2)`` vertices [m] in order, not repeated at the end.
+    """
+    return math.fsum(
+        [ring[i - 1][0] * ring[i][1] - ring[i][0] * ring[i - 1][1] for i in range(len(ring))]
+    )
+
+
 def polygon_area(polygon: object) -> float:
     """Signed area [m^2] of a polygon (shoelace formula): positive if counter-clockwise."""
     v = as_points(polygon)
@@ -182,6 +216,13 @@ def polygon_self_intersection(polygon: object) -> tuple[int, int] | None:
         polygon: ``(k, 2)`` vertices [m], ``k >= 3``.
     """
     v = as_points(polygon)
+    if len(v) <= _SMALL_POLYGON:
+        return _self_intersection_loop(v.tolist())
+    return _self_intersection_vectorised(v)
+
+
+def _self_intersection_vectorised(v: np.ndarray) -> tuple[int, int] | None:
+    """:func:`polygon_self_intersection` of ``(k, 2)`` vertices, numpy-vectorised."""
     k = len(v)
     a, b = v, _next(v)
     length = np.linalg.norm(b - a, axis=1)
@@ -204,12 +245,59 @@ def polygon_self_intersection(polygon: object) -> tuple[int, int] | None:
     return None
 
 
+def _in_box(s0: Sequence[float], s1: Sequence[float], r: Sequence[float]) -> bool:
+    """Whether ``r`` lies in the bounding box of the segment ``s0``-``s1``."""
+    return min(s0[0], s1[0]) <= r[0] <= max(s0[0], s1[0]) and min(s0[1], s1[1]) <= r[1] <= max(
+        s0[1], s1[1]
+    )
+
+
+def _self_intersection_loop(v: list[list[float]]) -> tuple[int, int] | None:
+    """:func:`polygon_self_intersection` of a vertex list, in plain Python.
+
+    The same tests in the same order and with the same arithmetic as
+    :func:`_self_intersection_vectorised` (and :func:`segments_intersect`), so both give
+    the same answer.
+    """
+    k = len(v)
+    nxt = v[1:] + v[:1]
+    edges = [(b[0] - a[0], b[1] - a[1]) for a, b in zip(v, nxt, strict=True)]
+    for i, (ex, ey) in enumerate(edges):
+        if ex * ex + ey * ey == 0.0:
+            return i, (i + 1) % k
+    for i, (ex, ey) in enumerate(edges):
+        fx, fy = edges[(i + 1) % k]
+        if ex * fy - ey * fx == 0.0 and ex * fx + ey * fy < 0.0:
+            return i, (i + 1) % k
+    for i in range(k):
+        p0, p1 = v[i], nxt[i]
+        for j in range(i + 2, k - 1 if i == 0 else k):  # skip adjacent edges
+            q0, q1 = v[j], nxt[j]
+            # Turns p0 -> p1 -> q0, p0 -> p1 -> q1, q0 -> q1 -> p0, q0 -> q1 -> p1.
+            o1 = (p1[0] - p0[0]) * (q0[1] - p0[1]) - (p1[1] - p0[1]) * (q0[0] - p0[0])
+            o2 = (p1[0] - p0[0]) * (q1[1] - p0[1]) - (p1[1] - p0[1]) * (q1[0] - p0[0])
+            o3 = (q1[0] - q0[0]) * (p0[1] - q0[1]) - (q1[1] - q0[1]) * (p0[0] - q0[0])
+            o4 = (q1[0] - q0[0]) * (p1[1] - q0[1]) - (q1[1] - q0[1]) * (p1[0] - q0[0])
+            if (((o1 > 0.0 > o2) or (o1 < 0.0 < o2)) and ((o3 > 0.0 > o4) or (o3 < 0.0 < o4))) or (
+                (o1 == 0.0 and _in_box(p0, p1, q0))
+                or (o2 == 0.0 and _in_box(p0, p1, q1))
+                or (o3 == 0.0 and _in_box(q0, q1, p0))
+                or (o4 == 0.0 and _in_box(q0, q1, p1))
+            ):
+                return i, j
+    return None
+
+
 def is_simple_polygon(polygon: object) -> bool:
-    """Whether a polygon of ``>= 3`` vertices is simple (no self-intersection, non-zero area)."""
+    """Whether a polygon of ``>= 3`` vertices is simple.
+
+    Simple: no self-intersection (:func:`polygon_self_intersection`) and a non-zero area
+    (the exact sign of :func:`shoelace_sum`).
+    """
     v = as_points(polygon)
     if len(v) < 3:
         return False
-    return polygon_self_intersection(v) is None and polygon_area(v) != 0.0
+    return polygon_self_intersection(v) is None and shoelace_sum(v.tolist()) != 0.0
 
 
 def obstacle_capsules(obstacle: Obstacle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
