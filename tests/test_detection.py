@@ -15,7 +15,13 @@ from _raycast import bearings_deg, cast, polygon_edges
 
 from vslam_gym.slam.config import ModelConfig, SensorConfig
 from vslam_gym.slam.creation import create_model
-from vslam_gym.slam.detection import beam_line_correspondence, detect
+from vslam_gym.slam.detection import (
+    beam_line_correspondence,
+    beam_line_correspondences,
+    detect,
+    detect_many,
+    model_parts,
+)
 from vslam_gym.slam.gaussian import FirstOrderLinearization, first_order_transform
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.likelihood import (
@@ -446,3 +452,64 @@ def test_bad_input_raises():
     for kw, match in cases:
         with pytest.raises(ValueError, match=match):
             call(**kw)
+
+
+# ------------------------------------------------------------- batched over models
+
+
+def _varied_models(trials):
+    """Models of different sizes: W from several scans, a closed and an open box."""
+    models = [trials[k][0] for k in range(4)]
+    models += [closed_box()[0], closed_box(closed=False)[0]]
+    return models
+
+
+@pytest.mark.parametrize("linearization", ["jacobian", "ut"])
+def test_detect_many_equals_one_model_at_a_time(trials, linearization):
+    config = ModelConfig(linearization=linearization)
+    rng = np.random.default_rng(7)
+    models = _varied_models(trials)
+    model0, pose0, scans = trials[0]
+    scan = scans["W"]
+    first, last = segment(scan)
+    poses = pose0 + rng.normal(0.0, [0.05, 0.05, 0.02], (len(models), 3))
+    many = detect_many(models, scan, first, last, poses, SENSOR, config)
+    assert len(many) == len(models)
+    cached = detect_many(
+        models, scan, first, last, poses, SENSOR, config, parts=[model_parts(m) for m in models]
+    )
+    for model, pose, d, c in zip(models, poses, many, cached, strict=True):
+        single = detect(model, scan, first, last, pose, SENSOR, config)
+        for got in (d, c):
+            assert got.accepted == single.accepted
+            assert (got.mean_d2, got.var_d2, got.loglik) == (
+                single.mean_d2,
+                single.var_d2,
+                single.loglik,
+            )
+            for name in ("line", "gated", "mu_err", "var_err", "loglik", "u", "d2"):
+                np.testing.assert_array_equal(
+                    getattr(got.association, name), getattr(single.association, name)
+                )
+    # the same models seen from the right pose include accepted ones
+    assert any(
+        d.accepted for d in detect_many(models[:4], scan, first, last, [pose0] * 4, SENSOR, config)
+    )
+
+
+def test_beam_line_correspondences_checks_its_poses(trials):
+    model, pose, scans = trials[0]
+    scan = scans["W"]
+    first, last = segment(scan)
+    lin = FirstOrderLinearization()
+    with pytest.raises(ValueError, match="poses must have shape"):
+        beam_line_correspondences(
+            [model, model], scan, first, last, pose, SENSOR, DEFAULT, lin, 0.1
+        )
+    with pytest.raises(ValueError, match="at least one"):
+        beam_line_correspondences([], scan, first, last, pose[None], SENSOR, DEFAULT, lin, 0.1)
+    quick = beam_line_correspondences(
+        [model, model], scan, first, last, [pose, pose], SENSOR, DEFAULT, lin, 0.1, distances=False
+    )
+    assert all(np.all(np.isnan(q.d2)) for q in quick)
+    np.testing.assert_array_equal(quick[0].line, quick[1].line)

@@ -8,7 +8,8 @@ from _raycast import bearings_deg, cast, polygon_edges
 
 from vslam_gym.config_utils import UnknownKeyError
 from vslam_gym.slam.config import SensorConfig
-from vslam_gym.slam.filter import SlamConfig, VertexSLAM
+from vslam_gym.slam.filter import SlamConfig, VertexSLAM, _median_distances
+from vslam_gym.slam.icp import line_geometry, object_radius
 from vslam_gym.slam.motion import increments_between, predict_pose
 from vslam_gym.slam.scan import ScanError
 
@@ -105,3 +106,50 @@ def test_config_from_dict_and_presets():
         SlamConfig.from_dict({"filter": {"min_set_beam": 6}})
     with pytest.raises(UnknownKeyError, match="preset"):
         SlamConfig.preset("thesys")
+
+
+# ----------------------------------------------------------------- cached map data
+
+
+def test_cached_models_radii_and_median_distances_match_plain_computations():
+    slam, _, _, _ = run(SlamConfig(), steps=40)
+    assert len(slam._landmarks) >= 3
+    thr = slam.config.model.unknown_threshold
+    rng = np.random.default_rng(2)
+    for lm in slam._landmarks:
+        r = slam._mu[lm.ref : lm.ref + 2]
+        model = slam._model(lm)
+        # the model as of the last refresh is the conditional at the current reference
+        np.testing.assert_array_equal(model.mean, lm.cond.mean(r))
+        np.testing.assert_allclose(lm.radius, object_radius(model, r, thr), rtol=0, atol=1e-12)
+    # median distances of random point sets, batched over models, against one at a time
+    models = [slam._model(lm) for lm in slam._landmarks]
+    geometry = [line_geometry(m) for m in models]
+    for _ in range(5):
+        pts = rng.uniform(-3.0, 9.0, (int(rng.integers(1, 40)), 2))
+        got = _median_distances(pts, geometry)
+        want = [reference_median_distance(pts, m) for m in models]
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def reference_median_distance(points, model):
+    """Median over points of the distance to the nearest line segment (plain loops)."""
+    idx = model.line_vertices()
+    out = []
+    for p in points:
+        best = np.inf
+        for a, b in model.mean[idx]:
+            ab = b - a
+            t = np.clip(((p - a) @ ab) / max(ab @ ab, 1e-12), 0.0, 1.0)
+            d = p - a - t * ab
+            best = min(best, np.sqrt(d[0] * d[0] + d[1] * d[1]))
+        out.append(best)
+    return np.median(out)
+
+
+def test_references_are_stored_in_creation_order():
+    slam, _, _, _ = run(SlamConfig(), steps=30)
+    assert [lm.ref for lm in slam._landmarks] == [3 + 2 * i for i in range(len(slam._landmarks))]
+    np.testing.assert_array_equal(
+        slam._refs(), [slam._mu[lm.ref : lm.ref + 2] for lm in slam._landmarks]
+    )

@@ -13,7 +13,9 @@ from vslam_gym.slam.geometry import polar_to_cartesian
 from vslam_gym.slam.icp import (
     IcpConfig,
     align,
+    align_many,
     candidate_landmarks,
+    line_geometry,
     object_radius,
     visible_lines,
 )
@@ -428,3 +430,31 @@ def test_object_radius_uses_object_vertices_only():
     # A long wall seen in part still gates in through its radius.
     centroid = np.array([-2.0, 5.5])
     assert candidate_landmarks(centroid, reference[None], np.array([radius]), 2.0).tolist() == [0]
+
+
+# ----------------------------------------------------------------- several models
+
+
+def test_align_many_equals_align_per_model():
+    rng = np.random.default_rng(4)
+    models = [model_of(SHAPES[name]) for name in ("L", "zigzag", "box")]
+    points = [set_points(scan_of(SHAPES[name], TRUE, rng), TRUE) for name in ("L", "zigzag", "box")]
+    cfg = IcpConfig(point_to_line=True)
+    limits = (SENSOR.max_range, SENSOR.half_fov)
+    for shared in (True, False):
+        pts = points[0] if shared else points
+        geometry = [line_geometry(m) for m in models]
+        many = align_many(pts, models, TRUE, cfg, *limits)
+        cached = align_many(pts, models, TRUE, cfg, *limits, lines=geometry)
+        for i, model in enumerate(models):
+            single = align(points[0] if shared else points[i], model, TRUE, cfg, *limits)
+            for got in (many[i], cached[i]):
+                np.testing.assert_array_equal(got.pose, single.pose)
+                assert (got.reason, got.iterations, got.n_used) == (
+                    single.reason,
+                    single.iterations,
+                    single.n_used,
+                )
+    assert align_many(points[0], [], TRUE) == []
+    with pytest.raises(ValueError, match="point sets"):
+        align_many(points[:2], models, TRUE)

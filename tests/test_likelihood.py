@@ -14,6 +14,7 @@ from vslam_gym.slam.likelihood import (
     expected_range,
     exponential_rate,
     generalized_mahalanobis_sq,
+    generalized_mahalanobis_sq_unchecked,
     line_loglik,
     object_loglik,
     range_error_distribution,
@@ -421,3 +422,25 @@ def test_detection_end_to_end_wall() -> None:
         )
         d2 = generalized_mahalanobis_sq(mu_err, var_err, 0.0, 0.1)
         assert detection_accepts(d2, config) is accept
+
+
+def test_gm_mode_search_in_groups_equals_one_group_at_a_time() -> None:
+    # Batched searches (one group per model in detection) each stop on their own, so
+    # every group gets exactly the result of a call with that group alone.
+    rng = np.random.default_rng(11)
+    sizes = [7, 1, 30, 12]
+    groups = np.repeat(np.arange(len(sizes)), sizes)
+    n = groups.size
+    s = 10 ** rng.uniform(-2.5, -0.5, n)
+    lam = np.full(n, 0.3)
+    u = np.where(rng.random(n) < 0.6, 1.0, 10 ** rng.uniform(-3, 0, n))
+    x = rng.normal(0.0, 3.0, n) * s
+    together = generalized_mahalanobis_sq_unchecked(x, s**2, u, lam, 5.0, groups)
+    for g in range(len(sizes)):
+        sel = groups == g
+        alone = generalized_mahalanobis_sq_unchecked(x[sel], s[sel] ** 2, u[sel], lam[sel], 5.0)
+        np.testing.assert_array_equal(together[sel], alone)
+    # and the grouped result is the ungrouped one up to the search tolerance
+    np.testing.assert_allclose(
+        together, generalized_mahalanobis_sq_unchecked(x, s**2, u, lam, 5.0), rtol=0, atol=1e-9
+    )

@@ -429,3 +429,22 @@ def test_thesis_preset_updates_with_the_unscented_transform():
         assert np.linalg.det(up.posterior.vertex_cov(i)) < np.linalg.det(fit.model.vertex_cov(i))
     d = corner_mahalanobis(up.posterior, [3], BOX[1:2])
     assert d[0] <= 3.0
+
+
+def test_unfinished_update_gives_the_filter_the_same_factor():
+    """``finish=False`` (the SLAM filter) skips Algorithm 7 and wrapping only."""
+    cfg = ModelConfig.thesis(linearization="jacobian")
+    s1 = scan_at(P1, BOX_EDGES)
+    fit = create_model(s1, *segment(s1), P1, SENSOR, cfg)
+    s2 = scan_at(P2, BOX_EDGES)
+    full = update_model(fit.model, s2, *segment(s2), P2, SENSOR, cfg)
+    quick = update_model(fit.model, s2, *segment(s2), P2, SENSOR, cfg, finish=False)
+    for name in ("F", "K_obs", "h_obs", "G", "A_vx", "b_vx", "vartheta", "old_of"):
+        np.testing.assert_array_equal(getattr(quick, name), getattr(full, name))
+    np.testing.assert_array_equal(quick.posterior.mean, full.posterior.mean)
+    np.testing.assert_array_equal(quick.posterior.u, full.posterior.u)
+    assert quick.chains == full.chains
+    assert quick.unknown is None and quick.wrap is None and quick.model is quick.posterior
+    # the object part spans the posterior's object lines: [X_l, A, B, C, D', X_r] less
+    # the chain vertices, here A..D' (u = [1, 1, 0, 0, 0, 1, 1])
+    assert quick.object_vertices == (2, 6)

@@ -42,6 +42,9 @@ Everything is vectorised over beams and lines: one propagation over the vertices
 over all (beam, line) pairs that pass the gate, and dense ``(n, n_lines)`` arrays for the
 choice. With :class:`~vslam_gym.slam.gaussian.FirstOrderLinearization` both
 propagations are evaluated in closed form (same result as its generic path).
+:func:`detect_many` tests one set against several models (each at its own pose) in one
+pass over ``(models, n, n_lines)`` arrays, with the same result per model as
+:func:`detect`; the filter uses it for all candidates of a set.
 """
 
 from __future__ import annotations
@@ -59,7 +62,7 @@ from vslam_gym.slam.gaussian import (
 from vslam_gym.slam.geometry import check_pose, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.likelihood import (
-    detection_statistics,
+    _expected_range_parts,
     expected_range,
     exponential_rate,
     generalized_mahalanobis_sq_unchecked,
@@ -67,16 +70,19 @@ from vslam_gym.slam.likelihood import (
     object_loglik,
     range_error_distribution,
     range_error_jacobian,
-    trimmed,
 )
 from vslam_gym.slam.scan import Scan
 
 __all__ = [
     "BeamAssociation",
     "Detection",
+    "ModelParts",
     "VertexBearings",
     "beam_line_correspondence",
+    "beam_line_correspondences",
     "detect",
+    "detect_many",
+    "model_parts",
     "vertex_polar_distribution",
 ]
 
@@ -331,48 +337,6 @@ def _range_errors(
 # --------------------------------------------------------------------- correspondence
 
 
-def _line_bearings(
-    vb: VertexBearings, lines: np.ndarray, gate: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per line: bearings of its two ends and their gate half-widths (clamped to pi/2).
-
-    A near vertex (no bearing) takes the bearing of the line's other vertex: seen from
-    the pose, the line is radial and covers no bearing interval of its own.
-    """
-    bearing = vb.mean[:, 1]
-    margin = np.minimum(gate * np.sqrt(vb.cov[:, 1, 1]), _HALF_PI)
-    a, b = lines[:, 0], lines[:, 1]
-    near_a, near_b = vb.near[a], vb.near[b]
-    phi_a = np.where(near_a, bearing[b], bearing[a])
-    phi_b = np.where(near_b, bearing[a], bearing[b])
-    m_a = np.where(near_a, margin[b], margin[a])
-    m_b = np.where(near_b, margin[a], margin[b])
-    return phi_a, phi_b, m_a, m_b
-
-
-def _fallback_lines(
-    delta_a: np.ndarray, delta_b: np.ndarray, front: np.ndarray, closed: bool
-) -> np.ndarray:
-    """Line for each beam that has no candidate (thesis T:2363-2366, notes 3.2).
-
-    Open chain: a beam left of the first vertex goes to the first line, a beam right of
-    the last vertex to the last line. Otherwise (closed polygon, or a beam in a gap of
-    a chain seen from behind), the line with the nearest end in bearing, among the
-    front-facing lines if there are any.
-    """
-    n_lines = delta_a.shape[1]
-    distance = np.minimum(np.abs(delta_a), np.abs(delta_b))
-    if np.any(front):
-        distance = np.where(front[None, :], distance, np.inf)
-    chosen = np.argmin(distance, axis=1)
-    if not closed:
-        left = delta_a[:, 0] < 0.0  # the beam's bearing exceeds that of the first vertex
-        right = delta_b[:, -1] > 0.0  # ... is below that of the last vertex
-        chosen = np.where(right, n_lines - 1, chosen)
-        chosen = np.where(left, 0, chosen)
-    return chosen
-
-
 def _line_loglik(mu: np.ndarray, var: np.ndarray, u: np.ndarray, lam: float) -> np.ndarray:
     """:func:`~vslam_gym.slam.likelihood.line_loglik` of (beam, line) pairs.
 
@@ -390,7 +354,12 @@ def _line_loglik(mu: np.ndarray, var: np.ndarray, u: np.ndarray, lam: float) -> 
 
 
 def _generalized_mahalanobis_sq(
-    mu: np.ndarray, var: np.ndarray, u: np.ndarray, lam: float, bracket_sigma: float
+    mu: np.ndarray,
+    var: np.ndarray,
+    u: np.ndarray,
+    lam: float,
+    bracket_sigma: float,
+    groups: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`~vslam_gym.slam.likelihood.generalized_mahalanobis_sq` per beam.
 
@@ -408,7 +377,12 @@ def _generalized_mahalanobis_sq(
             raise ValueError(f"gm_mode_bracket_sigma must be > 0, got {bracket_sigma!r}")
         # The caller validated every input (finite errors of positive variance here).
         d2[mixed] = generalized_mahalanobis_sq_unchecked(
-            mu[mixed], var[mixed], u[mixed], np.full(int(mixed.sum()), lam), bracket_sigma
+            mu[mixed],
+            var[mixed],
+            u[mixed],
+            np.full(int(mixed.sum()), lam),
+            bracket_sigma,
+            None if groups is None else groups[mixed],
         )
     return d2
 
@@ -468,99 +442,348 @@ def beam_line_correspondence(
     _check_model(model)
     first, last = _check_segment(scan, first, last)
     pose = check_pose(pose)
+    return beam_line_correspondences(
+        [model],
+        scan,
+        first,
+        last,
+        pose[None],
+        sensor,
+        config,
+        linearization,
+        lam,
+        distances=distances,
+    )[0]
+
+
+def _check_lam(lam: object) -> float:
     lam = float(lam)
     if not (np.isfinite(lam) and lam > 0.0):
         raise ValueError(f"lam must be finite and > 0, got {lam!r}")
+    return lam
+
+
+def _check_poses(poses: object, n_models: int) -> np.ndarray:
+    try:
+        arr = np.array(poses, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"pose must be numeric [x, y, theta], got {poses!r}") from exc
+    if arr.shape != (n_models, 3):
+        raise ValueError(
+            f"poses must have shape ({n_models}, 3) = one [x, y, theta] per model, got "
+            f"shape {arr.shape}"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"pose must be finite, got {arr}")
+    return arr
+
+
+@dataclass(frozen=True)
+class ModelParts:
+    """Arrays of one model that the correspondence needs (see :func:`model_parts`).
+
+    Attributes:
+        blocks: ``(k, 2, 2)`` each vertex's own covariance [m^2].
+        lines: ``(n_lines, 2)`` int, :meth:`LandmarkModel.line_vertices`.
+        mu_vv: ``(n_lines, 4)`` and ``sigma_vv`` ``(n_lines, 4, 4)``:
+            :meth:`LandmarkModel.line_blocks`.
+    """
+
+    blocks: np.ndarray
+    lines: np.ndarray
+    mu_vv: np.ndarray
+    sigma_vv: np.ndarray
+
+
+def model_parts(model: LandmarkModel) -> ModelParts:
+    """The per-model arrays of :func:`beam_line_correspondences` (a cache for callers).
+
+    They depend on the model's means and covariance only; a caller that tests the same
+    model many times may compute them once and pass them in.
+    """
+    k = model.n_vertices
+    diag = np.arange(k)
+    mu_vv, sigma_vv = model.line_blocks()
+    return ModelParts(
+        blocks=model.cov.reshape(k, 2, k, 2)[diag, :, diag, :],
+        lines=model.line_vertices(),
+        mu_vv=mu_vv,
+        sigma_vv=sigma_vv,
+    )
+
+
+class _PaddedModels:
+    """Vertices and lines of ``C`` models padded to common sizes (batched correspondence).
+
+    Vertex arrays are ``(C, K, ...)``, line arrays ``(C, L, ...)``; padding lines join
+    padding vertices and are never candidates (``valid`` False).
+    """
+
+    def __init__(self, models: list[LandmarkModel], parts: list[ModelParts]) -> None:
+        n_models = len(models)
+        k = max(m.n_vertices for m in models)
+        n_lines = max(m.n_lines for m in models)
+        self.mean = np.zeros((n_models, k, 2))
+        self.blocks = np.zeros((n_models, k, 2, 2))
+        self.blocks[:, :, 0, 0] = self.blocks[:, :, 1, 1] = 1.0
+        self.lines = np.zeros((n_models, n_lines, 2), dtype=int)
+        self.valid = np.zeros((n_models, n_lines), dtype=bool)
+        self.u = np.zeros((n_models, n_lines))
+        self.mu_vv = np.zeros((n_models, n_lines, 4))
+        self.sigma_vv = np.zeros((n_models, n_lines, 4, 4))
+        self.n_lines = np.array([m.n_lines for m in models])
+        self.closed = np.array([m.closed for m in models])
+        for c, (m, p) in enumerate(zip(models, parts, strict=True)):
+            kc, lc = m.n_vertices, m.n_lines
+            self.mean[c, :kc] = m.mean
+            self.blocks[c, :kc] = p.blocks
+            self.lines[c, :lc] = p.lines
+            self.valid[c, :lc] = True
+            self.u[c, :lc] = m.u
+            self.mu_vv[c, :lc], self.sigma_vv[c, :lc] = p.mu_vv, p.sigma_vv
+
+
+def _vertex_polar_many(
+    padded: _PaddedModels,
+    models: list[LandmarkModel],
+    poses: np.ndarray,
+    sensor: SensorConfig,
+    config: ModelConfig,
+    linearization: Linearization,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_vertex_polar` of every model from its pose: means, covariances, ``near``.
+
+    ``(C, K, 2)``, ``(C, K, 2, 2)``, ``(C, K)``; padding vertices are garbage.
+    """
+    if not isinstance(linearization, FirstOrderLinearization):
+        k = padded.mean.shape[1]
+        mean = np.zeros((len(models), k, 2))
+        cov = np.tile(np.eye(2), (len(models), k, 1, 1))
+        near = np.zeros((len(models), k), dtype=bool)
+        for c, m in enumerate(models):
+            vb = _vertex_polar(m, poses[c], sensor, config, linearization)
+            kc = m.n_vertices
+            mean[c, :kc], cov[c, :kc], near[c, :kc] = vb.mean, vb.cov, vb.near
+        return mean, cov, near
+    blocks = padded.blocks
+    dx = padded.mean[:, :, 0] - poses[:, 0, None]
+    dy = padded.mean[:, :, 1] - poses[:, 1, None]
+    r = np.hypot(dx, dy)
+    raw_bearing = np.asarray(wrap_angle(np.arctan2(dy, dx) - poses[:, 2, None]))
+    # Largest eigenvalue of each symmetric 2x2 block, in closed form.
+    sxx, syy, sxy = blocks[..., 0, 0], blocks[..., 1, 1], blocks[..., 0, 1]
+    lam_max = 0.5 * (sxx + syy) + np.hypot(0.5 * (sxx - syy), sxy)
+    near = r <= config.detection_gate_sigma * np.sqrt(np.maximum(lam_max, 0.0))
+    polar_mean = np.stack([r, raw_bearing], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        jac = _polar_jacobian(dx, dy)
+        polar_cov = jac @ blocks @ np.swapaxes(jac, -1, -2)
+    if near.any():  # no bearing: Q only (see _vertex_polar)
+        polar_cov[near] = 0.0
+    return polar_mean, polar_cov + sensor.Q, near
+
+
+def _range_errors_many(
+    ranges: np.ndarray,
+    bearings: np.ndarray,
+    Q: np.ndarray,  # noqa: N803 - the thesis's name
+    poses: np.ndarray,
+    owner: np.ndarray,
+    mu_vv: np.ndarray,
+    Sigma_vv: np.ndarray,  # noqa: N803 - the thesis's name
+    linearization: Linearization,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_range_errors` of (beam, line) pairs whose pose is ``poses[owner]``."""
+    if not isinstance(linearization, FirstOrderLinearization):
+        mu = np.empty(ranges.size)
+        var = np.empty(ranges.size)
+        for c in np.unique(owner):
+            sel = owner == c
+            mu[sel], var[sel] = _range_errors(
+                ranges[sel], bearings[sel], Q, poses[c], mu_vv[sel], Sigma_vv[sel], linearization
+            )
+        return mu, var
+    pose = poses[owner]
+    inputs = np.concatenate([ranges[:, None], bearings[:, None], mu_vv], axis=1)
+    jac = range_error_jacobian(inputs, pose)[:, 0, :]
+    j_z, j_v = jac[:, :2], jac[:, 2:]
+    var = np.sum((j_z @ Q) * j_z, axis=1) + (j_v[:, None, :] @ Sigma_vv @ j_v[:, :, None])[:, 0, 0]
+    numerator, denominator, *_ = _expected_range_parts(bearings, mu_vv[:, :2], mu_vv[:, 2:], pose)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mu = ranges - numerator / denominator
+    return mu, var
+
+
+def beam_line_correspondences(
+    models: list[LandmarkModel],
+    scan: Scan,
+    first: int,
+    last: int,
+    poses: np.ndarray,
+    sensor: SensorConfig,
+    config: ModelConfig,
+    linearization: Linearization,
+    lam: float,
+    *,
+    distances: bool = True,
+    parts: list[ModelParts] | None = None,
+) -> list[BeamAssociation]:
+    """:func:`beam_line_correspondence` of one set of beams against several models.
+
+    Model ``c`` is tested at ``poses[c]``. The models are padded to common sizes and
+    processed together in ``(models, beams, lines)`` arrays (one propagation, one mode
+    search for all), so that numpy's per-call overhead is paid once rather than once
+    per model; each result equals that of :func:`beam_line_correspondence` for its
+    model and pose.
+
+    Args:
+        models: the landmark models (world frame), at least one.
+        poses: ``(len(models), 3)`` lidar poses ``[x, y, theta]`` (world frame).
+        parts: optional :func:`model_parts` of each model (computed here when omitted);
+            the caller must keep them in step with the models.
+        (others): as :func:`beam_line_correspondence`.
+
+    Returns:
+        One :class:`BeamAssociation` per model, in order.
+
+    Raises:
+        ValueError: as :func:`beam_line_correspondence`, or ``poses`` of the wrong shape.
+    """
+    if len(models) == 0:
+        raise ValueError("models must hold at least one LandmarkModel")
+    for m in models:
+        _check_model(m)
+    first, last = _check_segment(scan, first, last)
+    poses = _check_poses(poses, len(models))
+    lam = _check_lam(lam)
 
     ranges = scan.ranges[first : last + 1]
     bearings = scan.bearings[first : last + 1]
     n = ranges.size
-    lines = model.line_vertices()
-    n_lines = lines.shape[0]
+    n_models = len(models)
+    if parts is None:
+        parts = [model_parts(m) for m in models]
+    pm = _PaddedModels(models, parts)
+    n_lines = pm.lines.shape[1]
     gate = config.detection_gate_sigma
+    cm = np.arange(n_models)[:, None]
 
-    # 1. Vertex bearings and each line's widened bearing interval.
-    vb = _vertex_polar(model, pose, sensor, config, linearization)
-    phi_a, phi_b, m_a, m_b = _line_bearings(vb, lines, gate)
-    va = model.mean[lines[:, 0]]
-    vbm = model.mean[lines[:, 1]]
-    rel_a = va - pose[:2]
-    rel_b = vbm - pose[:2]
-    front = (rel_a[:, 0] * rel_b[:, 1] - rel_a[:, 1] * rel_b[:, 0]) < 0.0
-    radial = vb.near[lines[:, 0]] | vb.near[lines[:, 1]]
-
-    # 2. Gate, per (beam, line).
-    delta_a = np.asarray(wrap_angle(phi_a[None, :] - bearings[:, None]))
-    delta_b = np.asarray(wrap_angle(phi_b[None, :] - bearings[:, None]))
-    angle = pose[2] + bearings
-    dv = va - vbm
-    length = np.hypot(dv[:, 0], dv[:, 1])
-    sin_beam_line = (
-        np.cos(angle)[:, None] * dv[None, :, 1] - np.sin(angle)[:, None] * dv[None, :, 0]
+    # 1. Vertex bearings and each line's widened bearing interval, clamped to pi/2. A
+    # near vertex (no bearing) takes the bearing of the line's other vertex: seen from
+    # the pose, the line is radial and covers no bearing interval of its own.
+    polar_mean, polar_cov, near = _vertex_polar_many(
+        pm, models, poses, sensor, config, linearization
     )
-    not_parallel = np.abs(sin_beam_line) > config.parallel_sin_min * length[None, :]
+    bearing = polar_mean[..., 1]
+    margin = np.minimum(gate * np.sqrt(polar_cov[..., 1, 1]), _HALF_PI)
+    a, b = pm.lines[..., 0], pm.lines[..., 1]
+    near_a, near_b = near[cm, a], near[cm, b]
+    phi_a = np.where(near_a, bearing[cm, b], bearing[cm, a])
+    phi_b = np.where(near_b, bearing[cm, a], bearing[cm, b])
+    m_a = np.where(near_a, margin[cm, b], margin[cm, a])
+    m_b = np.where(near_b, margin[cm, a], margin[cm, b])
+    va = pm.mean[cm, a]
+    vbm = pm.mean[cm, b]
+    rel_a = va - poses[:, None, :2]
+    rel_b = vbm - poses[:, None, :2]
+    front = (rel_a[..., 0] * rel_b[..., 1] - rel_a[..., 1] * rel_b[..., 0]) < 0.0
+    usable = front & ~(near_a | near_b) & pm.valid  # front-facing, not radial
+
+    # 2. Gate, per (model, beam, line).
+    delta_a = np.asarray(wrap_angle(phi_a[:, None, :] - bearings[None, :, None]))
+    delta_b = np.asarray(wrap_angle(phi_b[:, None, :] - bearings[None, :, None]))
+    angle = poses[:, 2, None] + bearings[None, :]
+    dv = va - vbm
+    length = np.hypot(dv[..., 0], dv[..., 1])
+    sin_beam_line = (
+        np.cos(angle)[:, :, None] * dv[:, None, :, 1]
+        - np.sin(angle)[:, :, None] * dv[:, None, :, 0]
+    )
+    not_parallel = np.abs(sin_beam_line) > config.parallel_sin_min * length[:, None, :]
     candidate = (
-        (front & ~radial)[None, :]
-        & (delta_b <= m_b[None, :])
-        & (delta_a >= -m_a[None, :])
+        usable[:, None, :]
+        & (delta_b <= m_b[:, None, :])
+        & (delta_a >= -m_a[:, None, :])
         & (delta_a - delta_b < np.pi)
         & not_parallel
     )
-    gated = np.any(candidate, axis=1)
+    gated = np.any(candidate, axis=2)
 
     # Beams without candidates: one fallback pair each (scored only if not parallel).
+    # Open chain: a beam left of the first vertex goes to the first line, one right of
+    # the last vertex to the last line; otherwise (closed polygon, or a gap of a chain
+    # seen from behind) the line with the nearest end in bearing, among the usable
+    # lines if there are any (thesis T:2363-2366, notes 3.2).
     evaluate = candidate.copy()
-    fallback = np.flatnonzero(~gated)
-    if fallback.size:
-        fb_line = _fallback_lines(
-            delta_a[fallback], delta_b[fallback], front & ~radial, model.closed
-        )
-        evaluate[fallback, fb_line] = not_parallel[fallback, fb_line]
+    fb_c, fb_beam = np.nonzero(~gated)
+    fb_line = np.zeros(0, dtype=int)
+    if fb_c.size:
+        da, db = delta_a[fb_c, fb_beam], delta_b[fb_c, fb_beam]  # (m, L)
+        distance = np.minimum(np.abs(da), np.abs(db))
+        restrict = usable[fb_c]
+        restrict |= ~restrict.any(axis=1, keepdims=True)  # no usable line: any line
+        distance = np.where(restrict & pm.valid[fb_c], distance, np.inf)
+        fb_line = np.argmin(distance, axis=1)
+        last_line = pm.n_lines[fb_c] - 1
+        open_chain = ~pm.closed[fb_c]
+        left = open_chain & (da[:, 0] < 0.0)
+        right = open_chain & (db[np.arange(fb_c.size), last_line] > 0.0)
+        fb_line = np.where(right, last_line, fb_line)
+        fb_line = np.where(left, 0, fb_line)
+        evaluate[fb_c, fb_beam, fb_line] = not_parallel[fb_c, fb_beam, fb_line]
 
     # 3. Range errors of every evaluated pair in one batched propagation.
-    beam_idx, line_idx = np.nonzero(evaluate)
-    mu_err = np.full((n, n_lines), np.nan)
-    var_err = np.full((n, n_lines), np.nan)
-    loglik = np.full((n, n_lines), -np.inf)
+    pair_c, beam_idx, line_idx = np.nonzero(evaluate)
+    mu_err = np.full((n_models, n, n_lines), np.nan)
+    var_err = np.full((n_models, n, n_lines), np.nan)
+    loglik = np.full((n_models, n, n_lines), -np.inf)
     if beam_idx.size:
-        mu_vv, sigma_vv = model.line_blocks()
-        mu_p, var_p = _range_errors(
+        mu_p, var_p = _range_errors_many(
             ranges[beam_idx],
             bearings[beam_idx],
             sensor.Q,
-            pose,
-            mu_vv[line_idx],
-            sigma_vv[line_idx],
+            poses,
+            pair_c,
+            pm.mu_vv[pair_c, line_idx],
+            pm.sigma_vv[pair_c, line_idx],
             linearization,
         )
-        mu_err[beam_idx, line_idx] = mu_p
-        var_err[beam_idx, line_idx] = var_p
-        loglik[beam_idx, line_idx] = _line_loglik(mu_p, var_p, model.u[line_idx], lam)
+        mu_err[pair_c, beam_idx, line_idx] = mu_p
+        var_err[pair_c, beam_idx, line_idx] = var_p
+        loglik[pair_c, beam_idx, line_idx] = _line_loglik(mu_p, var_p, pm.u[pair_c, line_idx], lam)
 
     # 4. Choice: the most likely candidate, else the fallback line.
-    line = np.argmax(np.where(candidate, loglik, -np.inf), axis=1)
-    if fallback.size:
-        line[fallback] = fb_line
-    rows = np.arange(n)
-    chosen_mu = mu_err[rows, line]
-    chosen_var = var_err[rows, line]
-    chosen_ll = loglik[rows, line]
-    u = model.u[line].copy()
+    line = np.argmax(np.where(candidate, loglik, -np.inf), axis=2)
+    if fb_c.size:
+        line[fb_c, fb_beam] = fb_line
+    rows = np.arange(n)[None, :]
+    chosen_mu = mu_err[cm, rows, line]
+    chosen_var = var_err[cm, rows, line]
+    chosen_ll = loglik[cm, rows, line]
+    u = pm.u[cm, line]
     if distances:
         d2 = _generalized_mahalanobis_sq(
-            chosen_mu, chosen_var, u, lam, config.gm_mode_bracket_sigma
-        )
+            chosen_mu.ravel(),
+            chosen_var.ravel(),
+            u.ravel(),
+            lam,
+            config.gm_mode_bracket_sigma,
+            np.repeat(np.arange(n_models), n),  # each model's mode search stops on its own
+        ).reshape(n_models, n)
     else:
-        d2 = np.full(n, np.nan)
-    return BeamAssociation(
-        line=line,
-        gated=gated,
-        mu_err=chosen_mu,
-        var_err=chosen_var,
-        loglik=chosen_ll,
-        u=u,
-        d2=d2,
-    )
+        d2 = np.full((n_models, n), np.nan)
+    return [
+        BeamAssociation(
+            line=line[c],
+            gated=gated[c],
+            mu_err=chosen_mu[c],
+            var_err=chosen_var[c],
+            loglik=chosen_ll[c],
+            u=u[c],
+            d2=d2[c],
+        )
+        for c in range(n_models)
+    ]
 
 
 # ----------------------------------------------------------------------------- test
@@ -602,19 +825,73 @@ def detect(
     Raises:
         ValueError: as :func:`beam_line_correspondence`.
     """
+    _check_model(model)
+    _check_segment(scan, first, last)
+    pose = check_pose(pose)
+    return detect_many([model], scan, first, last, pose[None], sensor, config, linearization, lam)[
+        0
+    ]
+
+
+def detect_many(
+    models: list[LandmarkModel],
+    scan: Scan,
+    first: int,
+    last: int,
+    poses: np.ndarray,
+    sensor: SensorConfig,
+    config: ModelConfig,
+    linearization: Linearization | None = None,
+    lam: float | None = None,
+    *,
+    parts: list[ModelParts] | None = None,
+) -> list[Detection]:
+    """:func:`detect` of one set of beams against several models, model ``c`` at ``poses[c]``.
+
+    One :func:`beam_line_correspondences` call for all models; each result equals that
+    of :func:`detect` for its model and pose.
+
+    Args:
+        models: the landmark models (world frame), at least one.
+        poses: ``(len(models), 3)`` lidar poses ``[x, y, theta]`` (world frame).
+        parts: optional :func:`model_parts` of each model.
+        (others): as :func:`detect`.
+
+    Returns:
+        One :class:`Detection` per model, in order.
+
+    Raises:
+        ValueError: as :func:`beam_line_correspondences`.
+    """
     lin = make_linearization(config) if linearization is None else linearization
     if lam is None:
         if not isinstance(scan, Scan):
             raise ValueError(f"scan must be a Scan, got {type(scan).__name__}")
         lam = exponential_rate(scan.ranges, scan.max_range)
-    assoc = beam_line_correspondence(model, scan, first, last, pose, sensor, config, lin, lam)
-    mean_d2, var_d2 = detection_statistics(trimmed(assoc.d2, config.detection_trim_fraction))
-    # The rule of likelihood.detection_accepts, on the statistics already computed.
-    accepted = bool(mean_d2 <= config.detection_mean_max and var_d2 <= config.detection_var_max)
-    return Detection(
-        accepted=accepted,
-        association=assoc,
-        mean_d2=mean_d2,
-        var_d2=var_d2,
-        loglik=float(np.sum(assoc.loglik)),
+    assocs = beam_line_correspondences(
+        models, scan, first, last, poses, sensor, config, lin, lam, parts=parts
     )
+    d2 = np.stack([a.d2 for a in assocs])  # (models, n)
+    # detection_statistics of trimmed(d2), per model: the same k largest values are left
+    # out of every row (same n).
+    k = int(np.floor(config.detection_trim_fraction * d2.shape[1]))
+    if k > 0:
+        d2 = np.partition(d2, d2.shape[1] - k - 1, axis=1)[:, : d2.shape[1] - k]
+    finite = np.all(np.isfinite(d2), axis=1)
+    with np.errstate(invalid="ignore"):
+        mean_d2 = np.where(finite, np.mean(d2, axis=1), np.inf).tolist()
+        var_d2 = np.where(finite, np.var(d2, axis=1), np.inf).tolist()
+    out = []
+    for assoc, mean, var in zip(assocs, mean_d2, var_d2, strict=True):
+        # The rule of likelihood.detection_accepts, on the statistics already computed.
+        accepted = bool(mean <= config.detection_mean_max and var <= config.detection_var_max)
+        out.append(
+            Detection(
+                accepted=accepted,
+                association=assoc,
+                mean_d2=mean,
+                var_d2=var,
+                loglik=float(np.sum(assoc.loglik)),
+            )
+        )
+    return out

@@ -10,8 +10,9 @@ returns a :class:`Belief`. One step:
    used;
 4. correspondence per set: landmarks near the set, ICP to each
    (:func:`~vslam_gym.slam.icp.align`), the detection test at the aligned pose
-   (:func:`~vslam_gym.slam.detection.detect`), maximum of the set likelihood plus the pose
-   prior; an association updates only with two object lines of two beams each;
+   (:func:`~vslam_gym.slam.detection.detect`, all candidates of a set in one batch),
+   maximum of the set likelihood plus the pose prior; an association updates only with
+   two object lines of two beams each;
 5. per association: the model update (:func:`~vslam_gym.slam.update.update_model`) gives
    ``Phi3``; the canonical state-space update
    (:func:`~vslam_gym.slam.state_update.state_space_update`) gives the new belief and
@@ -37,10 +38,16 @@ from vslam_gym.config_utils import check_keys
 from vslam_gym.slam.config import FilterConfig, ModelConfig, SensorConfig
 from vslam_gym.slam.creation import create_model, initial_grouping
 from vslam_gym.slam.creation import point_covariances as _point_covariances
-from vslam_gym.slam.detection import detect
+from vslam_gym.slam.detection import detect_many, model_parts
 from vslam_gym.slam.gaussian import make_linearization, symmetrize
 from vslam_gym.slam.geometry import wrap_angle
-from vslam_gym.slam.icp import IcpConfig, align, candidate_landmarks, object_radius
+from vslam_gym.slam.icp import (
+    IcpConfig,
+    LineGeometry,
+    align_many,
+    candidate_landmarks,
+    line_geometry,
+)
 from vslam_gym.slam.landmark import LandmarkModel, prune_unknown_chains
 from vslam_gym.slam.likelihood import exponential_rate
 from vslam_gym.slam.motion import (
@@ -54,6 +61,7 @@ from vslam_gym.slam.motion import (
 from vslam_gym.slam.scan import Scan
 from vslam_gym.slam.segmentation import segment_scan
 from vslam_gym.slam.state_update import (
+    POSE_DIM,
     REF_DIM,
     LandmarkConditional,
     augment_landmark,
@@ -194,6 +202,81 @@ class _Landmark:
     object_vertices: tuple[int, int]
     model: LandmarkModel | None = None
     radius: float = 0.0
+    refreshed_at: np.ndarray | None = None  # reference at the last refresh
+    # Derived data of ``model`` for the association (built on first use, dropped with it).
+    geometry: LineGeometry | None = None  # icp.line_geometry
+    parts: Any = None  # detection.model_parts
+
+
+class _MapSnapshot:
+    """Every landmark's object radius (the candidate gate) from the references, batched.
+
+    ``p(v | r)`` of landmark ``l`` gives the vertex means ``v = A_l r_l + b_l``. The
+    ``A_l`` and ``b_l`` are kept padded to ``(N, 2K, 2)`` and ``(N, 2K)`` (a row is
+    replaced when that landmark's conditional changes), so that all means and radii
+    (:func:`~vslam_gym.slam.icp.object_radius`) follow from the references in a few
+    vectorised operations instead of a loop over the map.
+    """
+
+    def __init__(self) -> None:
+        self.a = np.zeros((0, 0, REF_DIM))
+        self.b = np.zeros((0, 0))
+        self.k = np.zeros(0, dtype=int)
+        self.objects = np.zeros((0, 0), dtype=bool)  # vertices on an object line
+        self.means = np.zeros((0, 0, 2))
+        self.radii = np.zeros(0)
+
+    def set(self, i: int, cond: LandmarkConditional, u: np.ndarray, closed: bool, thr: float):
+        """Row ``i`` from a landmark's conditional and line probabilities."""
+        n = max(i + 1, self.k.size)
+        k = cond.b.size // 2
+        width = max(k, self.objects.shape[1])
+        if n > self.k.size or width > self.objects.shape[1]:
+            a = np.zeros((n, 2 * width, REF_DIM))
+            b = np.zeros((n, 2 * width))
+            objects = np.zeros((n, width), dtype=bool)
+            kk = np.zeros(n, dtype=int)
+            m, w = self.k.size, self.objects.shape[1]
+            a[:m, : 2 * w], b[:m, : 2 * w], objects[:m, :w], kk[:m] = (
+                self.a,
+                self.b,
+                self.objects,
+                self.k,
+            )
+            self.a, self.b, self.objects, self.k = a, b, objects, kk
+        self.a[i] = 0.0
+        self.b[i] = 0.0
+        self.objects[i] = False
+        self.a[i, : 2 * k] = cond.A
+        self.b[i, : 2 * k] = cond.b
+        self.k[i] = k
+        j = np.arange(k if closed else max(k - 1, 0))
+        lines = np.stack([j, (j + 1) % k], axis=1)[u <= thr]
+        if lines.size:
+            self.objects[i, lines.ravel()] = True
+        else:  # no object line: all vertices (icp.object_radius)
+            self.objects[i, :k] = True
+
+    def refresh(self, refs: np.ndarray) -> None:
+        """Means ``(N, K, 2)`` and object radii ``(N,)`` [m] at the references ``(N, 2)``."""
+        means = (self.a @ refs[:, :, None])[:, :, 0] + self.b
+        self.means = means.reshape(means.shape[0], -1, 2)
+        dist = np.hypot(
+            self.means[:, :, 0] - refs[:, 0, None], self.means[:, :, 1] - refs[:, 1, None]
+        )
+        self.radii = np.max(np.where(self.objects, dist, -np.inf), axis=1)
+
+
+@dataclass
+class _SetWork:
+    """A measurement set's candidate landmarks (association, first phase)."""
+
+    first: int
+    last: int
+    points: np.ndarray  # (n, 2) at the predicted pose
+    landmarks: list[_Landmark]
+    geometry: list[LineGeometry]
+    aligned: np.ndarray  # indices into landmarks that are aligned (not "far")
 
 
 @dataclass
@@ -244,6 +327,7 @@ class VertexSLAM:
         self._mu = compose(pose, self._offset)
         self._sigma = np.diag(np.asarray(self.config.filter.initial_pose_sigma) ** 2)
         self._landmarks: list[_Landmark] = []
+        self._snapshot = _MapSnapshot()
         self._step = 0
         self._decisions: tuple[SetDecision, ...] = ()
         self._step_ms = 0.0
@@ -260,7 +344,7 @@ class VertexSLAM:
                     id=lm.id,
                     reference=self._mu[r].copy(),
                     reference_cov=self._sigma[r, r].copy(),
-                    model=lm.model.copy(),
+                    model=self._model(lm).copy(),
                     object_vertices=lm.object_vertices,
                 )
             )
@@ -336,35 +420,55 @@ class VertexSLAM:
         a = pose[2] + scan.bearings[first : last + 1]
         return np.stack([pose[0] + r * np.cos(a), pose[1] + r * np.sin(a)], axis=1)
 
-    def _associate(
-        self, scan: Scan, first: int, last: int, lam: float
-    ) -> tuple[_Association | None, tuple]:
-        """Maximum-likelihood landmark for a set (4.3.4-4.3.18) and the candidates tried."""
+    def _refs(self) -> np.ndarray:
+        """``(L, 2)`` every landmark's reference mean [m] (a copy).
+
+        Landmarks are appended to the state in creation order: landmark ``i``'s reference
+        is at state index ``3 + 2 i``.
+        """
+        n = len(self._landmarks)
+        return self._mu[POSE_DIM : POSE_DIM + REF_DIM * n].reshape(n, REF_DIM).copy()
+
+    def _candidates(
+        self, scan: Scan, first: int, last: int, refs: np.ndarray, radii: np.ndarray
+    ) -> _SetWork | None:
+        """Candidate landmarks of a set and which of them are near enough to align."""
         if not self._landmarks:
-            return None, ()
+            return None
         pose = self._mu[:3]
         pts = self._set_points(scan, first, last, pose)
-        refs = np.array([self._mu[lm.ref : lm.ref + 2] for lm in self._landmarks])
-        radii = np.array([lm.radius for lm in self._landmarks])
         cand = candidate_landmarks(
             pts.mean(axis=0), refs, radii, self.config.filter.candidate_margin
         )
         if cand.size == 0:
-            return None, ()
+            return None
+        lms = [self._landmarks[i] for i in cand]
+        geometry = [self._geometry(lm) for lm in lms]
+        max_dist = self.config.filter.candidate_max_median_distance
+        if np.isfinite(max_dist):
+            near = _median_distances(pts, geometry) <= max_dist
+        else:
+            near = np.ones(len(lms), dtype=bool)
+        return _SetWork(first, last, pts, lms, geometry, np.flatnonzero(near))
+
+    def _associate(
+        self, scan: Scan, work: _SetWork, results: list, lam: float
+    ) -> tuple[_Association | None, tuple]:
+        """Maximum-likelihood landmark for a set (4.3.4-4.3.18) and the candidates tried.
+
+        ``results``: the ICP alignment of the set to each of ``work.aligned``. The
+        accepted candidates are tested together
+        (:func:`~vslam_gym.slam.detection.detect_many`).
+        """
+        lms, pose = work.landmarks, self._mu[:3]
+        tried: list[tuple | None] = [None] * len(lms)
+        for c in np.setdiff1d(np.arange(len(lms)), work.aligned):
+            tried[c] = (lms[c].id, "far", np.nan, np.nan, False)
         cov_x = self._sigma[:3, :3]
         chol = np.linalg.cholesky(cov_x)
         log_norm = -0.5 * (3 * np.log(2 * np.pi)) - np.log(np.diag(chol)).sum()
-        best, best_score = None, -np.inf
-        tried = []
-        max_dist = self.config.filter.candidate_max_median_distance
-        for i in cand:
-            lm = self._landmarks[i]
-            if np.isfinite(max_dist) and _median_distance(pts, lm.model) > max_dist:
-                tried.append((lm.id, "far", np.nan, np.nan, False))
-                continue
-            res = align(
-                pts, lm.model, pose, self.config.icp, self.sensor.max_range, self.sensor.half_fov
-            )
+        tested, m2s = [], {}
+        for c, res in zip(work.aligned, results, strict=True):
             if not np.all(np.isfinite(res.pose)):
                 continue
             d = res.pose - pose
@@ -372,41 +476,49 @@ class VertexSLAM:
             white = np.linalg.solve(chol, d)
             m2 = float(white @ white)
             if np.sqrt(m2) > self.config.filter.icp_max_pose_mahalanobis:
-                tried.append((lm.id, res.reason, np.nan, np.nan, False))
+                tried[c] = (lms[c].id, res.reason, np.nan, np.nan, False)
                 continue
-            det = detect(
-                lm.model,
+            tested.append((c, res))
+            m2s[c] = m2
+        best, best_score = None, -np.inf
+        if tested:
+            dets = detect_many(
+                [self._model(lms[c]) for c, _ in tested],
                 scan,
-                first,
-                last,
-                res.pose,
+                work.first,
+                work.last,
+                np.array([res.pose for _, res in tested]),
                 self.sensor,
                 self.config.model,
                 self._lin,
                 lam,
+                parts=[self._parts(lms[c]) for c, _ in tested],
             )
-            tried.append((lm.id, res.reason, det.mean_d2, det.var_d2, det.accepted))
-            if not det.accepted:
-                continue
-            score = det.loglik + log_norm - 0.5 * m2
-            if score > best_score:
-                line = det.association.line
-                obj = lm.model.u[line] <= self.config.model.unknown_threshold
-                counts = np.bincount(line[obj], minlength=lm.model.n_lines)
-                enough = int(np.sum(counts >= self.config.filter.min_beams_per_object_line))
-                best_score = score
-                best = _Association(
-                    first,
-                    last,
-                    lm,
-                    res.pose.copy(),
-                    (),
-                    enough >= self.config.filter.min_object_lines,
-                    detection=det,
-                )
+            for (c, res), det in zip(tested, dets, strict=True):
+                lm, model = lms[c], self._model(lms[c])
+                tried[c] = (lm.id, res.reason, det.mean_d2, det.var_d2, det.accepted)
+                if not det.accepted:
+                    continue
+                score = det.loglik + log_norm - 0.5 * m2s[c]
+                if score > best_score:
+                    line = det.association.line
+                    obj = model.u[line] <= self.config.model.unknown_threshold
+                    counts = np.bincount(line[obj], minlength=model.n_lines)
+                    enough = int(np.sum(counts >= self.config.filter.min_beams_per_object_line))
+                    best_score = score
+                    best = _Association(
+                        work.first,
+                        work.last,
+                        lm,
+                        res.pose.copy(),
+                        (),
+                        enough >= self.config.filter.min_object_lines,
+                        detection=det,
+                    )
+        done = tuple(t for t in tried if t is not None)
         if best is not None:
-            best.candidates = tuple(tried)
-        return best, tuple(tried)
+            best.candidates = done
+        return best, done
 
     def _measurement_update(self, scan: Scan):
         cfg = self.config.filter
@@ -417,11 +529,33 @@ class VertexSLAM:
         decisions: list[SetDecision] = []
         unmatched: list[tuple[int, int]] = []
         associations: list[_Association] = []
+        # Every set is associated against the map as it was before this scan: first
+        # each set's candidates, then all alignments, then each set's detection tests.
+        works: list[tuple[int, int, _SetWork | None]] = []
+        refs = self._refs()
+        radii = np.array([lm.radius for lm in self._landmarks])
         for first, last in sets:
             if not self._informative(scan, first, last, self._mu[:3]):
                 decisions.append(SetDecision(first, last, "skipped"))
                 continue
-            assoc, tried = self._associate(scan, first, last, lam)
+            works.append((first, last, self._candidates(scan, first, last, refs, radii)))
+        pairs = [(w, c) for _, _, w in works if w is not None for c in w.aligned]
+        results = align_many(
+            [w.points for w, _ in pairs],
+            [self._model(w.landmarks[c]) for w, c in pairs],
+            self._mu[:3],
+            self.config.icp,
+            self.sensor.max_range,
+            self.sensor.half_fov,
+            lines=[w.geometry[c] for w, c in pairs],
+        )
+        at = 0
+        for first, last, work in works:
+            if work is None:
+                unmatched.append((first, last, ()))
+                continue
+            assoc, tried = self._associate(scan, work, results[at : at + work.aligned.size], lam)
+            at += work.aligned.size
             if assoc is None:
                 unmatched.append((first, last, tried))
             else:
@@ -449,7 +583,7 @@ class VertexSLAM:
         lm = assoc.landmark
         try:
             upd = update_model(
-                lm.model,
+                self._model(lm),
                 scan,
                 assoc.first,
                 assoc.last,
@@ -459,6 +593,7 @@ class VertexSLAM:
                 self._lin,
                 association=assoc.detection,
                 object_vertices=lm.object_vertices,
+                finish=False,  # Algorithm 7 and wrapping: _finish_model, at the new pose
             )
             f = upd.F
             a2, b2 = f.T @ lm.cond.A, f.T @ lm.cond.b
@@ -488,7 +623,8 @@ class VertexSLAM:
             (0, lm.u.size) if lm.closed else _object_span(lm.u, self.config.model.unknown_threshold)
         )
         self._finish_model(lm, upd, scan)
-        lm.model = self._model_of(lm)
+        self._set_model(lm, self._model_of(lm))
+        self._snapshot.set(lm.id, lm.cond, lm.u, lm.closed, self.config.model.unknown_threshold)
         return True
 
     def _finish_model(self, lm: _Landmark, upd, scan: Scan) -> None:
@@ -600,8 +736,9 @@ class VertexSLAM:
             closed=False,
             object_vertices=fit.object_vertices,
         )
-        lm.model = self._model_of(lm)
+        self._set_model(lm, self._model_of(lm))
         self._landmarks.append(lm)
+        self._snapshot.set(lm.id, lm.cond, lm.u, lm.closed, self.config.model.unknown_threshold)
         return lm.id
 
     def _model_of(self, lm: _Landmark) -> LandmarkModel:
@@ -609,23 +746,67 @@ class VertexSLAM:
         return LandmarkModel(lm.cond.mean(r), lm.cond.covariance(), lm.u.copy(), lm.closed)
 
     def _refresh_models(self) -> None:
-        """Vertex means from the (moved) references; object radius for gating."""
-        thr = self.config.model.unknown_threshold
-        for lm in self._landmarks:
-            lm.model = self._model_of(lm)
-            lm.radius = object_radius(lm.model, self._mu[lm.ref : lm.ref + REF_DIM], thr)
+        """Vertex means from the (moved) references; object radius for gating.
+
+        The radii in one batch (:class:`_MapSnapshot`); each landmark's
+        :class:`LandmarkModel` (the conditional at the reference of this refresh) is
+        built when first needed (:meth:`_model`), with its ICP and detection data.
+        """
+        if not self._landmarks:
+            return
+        refs = self._refs()
+        self._snapshot.refresh(refs)
+        for lm, r, radius in zip(self._landmarks, refs, self._snapshot.radii.tolist(), strict=True):
+            self._set_model(lm, None)
+            lm.refreshed_at, lm.radius = r, radius
+
+    def _model(self, lm: _Landmark) -> LandmarkModel:
+        """The landmark's model as of the last refresh (or its own last update)."""
+        if lm.model is None:
+            mean = lm.cond.mean(lm.refreshed_at)
+            lm.model = LandmarkModel(mean, lm.cond.covariance(), lm.u.copy(), lm.closed)
+        return lm.model
+
+    @staticmethod
+    def _set_model(lm: _Landmark, model: LandmarkModel | None) -> None:
+        lm.model, lm.geometry, lm.parts = model, None, None
+
+    def _geometry(self, lm: _Landmark) -> LineGeometry:
+        if lm.geometry is None:
+            lm.geometry = line_geometry(self._model(lm))
+        return lm.geometry
+
+    def _parts(self, lm: _Landmark):
+        if lm.parts is None:
+            lm.parts = model_parts(self._model(lm))
+        return lm.parts
 
 
-def _median_distance(points: np.ndarray, model: LandmarkModel) -> float:
-    """Median distance [m] of ``points`` ``(n, 2)`` to the model's nearest line segment."""
-    idx = model.line_vertices()
-    a = model.mean[idx[:, 0]]
-    ab = model.mean[idx[:, 1]] - a
-    length2 = np.maximum((ab * ab).sum(axis=1), 1e-12)
-    ap = points[:, None, :] - a[None, :, :]
-    t = np.clip((ap * ab).sum(axis=2) / length2, 0.0, 1.0)
-    d = ap - t[..., None] * ab
-    return float(np.median(np.sqrt((d * d).sum(axis=2)).min(axis=1)))
+_MIN_LENGTH2 = 1e-12
+"""Squared length [m^2] below which a line counts as a point (median distance)."""
+
+
+def _median_distances(points: np.ndarray, geometry: list[LineGeometry]) -> np.ndarray:
+    """Median distance [m] of ``points`` ``(n, 2)`` to each model's nearest line segment.
+
+    ``geometry``: :func:`~vslam_gym.slam.icp.line_geometry` of each model, padded here
+    into one ``(models, n, lines)`` batch. Returns ``(len(geometry),)``.
+    """
+    n_lines = max(g.ax.size for g in geometry)
+    padded = np.zeros((4, len(geometry), n_lines))
+    valid = np.zeros((len(geometry), n_lines), dtype=bool)
+    for i, g in enumerate(geometry):
+        padded[:, i, : g.ax.size] = (g.ax, g.ay, g.abx, g.aby)
+        valid[i, : g.ax.size] = True
+    ax, ay, abx, aby = (row[:, None, :] for row in padded[:4])  # (m, 1, L)
+    length2 = np.maximum(abx * abx + aby * aby, _MIN_LENGTH2)
+    apx = points[None, :, 0, None] - ax
+    apy = points[None, :, 1, None] - ay
+    t = np.clip((apx * abx + apy * aby) / length2, 0.0, 1.0)
+    dx = apx - t * abx
+    dy = apy - t * aby
+    dist2 = np.where(valid[:, None, :], dx * dx + dy * dy, np.inf).min(axis=2)
+    return np.median(np.sqrt(dist2), axis=1)
 
 
 def _pruned_u(

@@ -570,7 +570,12 @@ def _mixture_derivatives(
 
 
 def _density_mode(
-    var: np.ndarray, lam: np.ndarray, log_u: np.ndarray, log_1mu: np.ndarray, bracket: float
+    var: np.ndarray,
+    lam: np.ndarray,
+    log_u: np.ndarray,
+    log_1mu: np.ndarray,
+    bracket: float,
+    groups: np.ndarray | None = None,
 ) -> np.ndarray:
     """Mode of the line density of each beam, vectorised (1-D).
 
@@ -583,6 +588,10 @@ def _density_mode(
     than that; d_GM^2 is flat at the mode, so an error of ``t`` sigma changes it by
     about ``t^2``), or after as many iterations as a plain bisection to that tolerance
     would take twice, keeping the last point.
+
+    ``groups`` (optional, ``(n,)`` ints from 0): independent searches batched together.
+    Each group stops on its own (its points are frozen once all of its steps are below
+    the tolerance), so that every result equals that of a call with its group alone.
     """
 
     def rising(at: np.ndarray) -> np.ndarray:
@@ -601,6 +610,7 @@ def _density_mode(
         raise RuntimeError("generalized_mahalanobis_sq: could not bracket the mode")
     tolerance = _MODE_TOLERANCE * sigma
     x = lo.copy()
+    running = None if groups is None else np.ones(x.size, dtype=bool)
     for _ in range(2 * _BISECTION_ITERATIONS):
         slope, curvature = _mixture_derivatives(x, var, lam, log_u, log_1mu)
         up = slope > 0.0
@@ -610,9 +620,17 @@ def _density_mode(
             newton = x - slope / curvature
         inside = (curvature < 0.0) & (newton >= lo) & (newton <= hi)
         x_new = np.where(inside, newton, 0.5 * (lo + hi))
-        step = np.abs(x_new - x)
-        x = x_new
-        if np.all(step <= tolerance):
+        big = ~(np.abs(x_new - x) <= tolerance)
+        if running is None:
+            x = x_new
+            if not np.any(big):
+                break
+            continue
+        x = np.where(running, x_new, x)
+        # A group whose running points all took a small step is done.
+        unfinished = np.bincount(groups[running & big], minlength=groups.max() + 1) > 0
+        running &= unfinished[groups]
+        if not np.any(running):
             break
     return x
 
@@ -665,12 +683,18 @@ def generalized_mahalanobis_sq(
 
 
 def generalized_mahalanobis_sq_unchecked(
-    x: np.ndarray, var: np.ndarray, u: np.ndarray, lam: np.ndarray, bracket: float
+    x: np.ndarray,
+    var: np.ndarray,
+    u: np.ndarray,
+    lam: np.ndarray,
+    bracket: float,
+    groups: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`generalized_mahalanobis_sq` of validated 1-D arrays of equal length (hot path).
 
     The caller guarantees finite ``x``, ``var > 0``, ``u`` in ``[0, 1]``, ``lam > 0`` and
-    ``bracket > 0``; nothing is checked.
+    ``bracket > 0``; nothing is checked. ``groups``: see :func:`_density_mode` (each
+    group's result is that of a call with the group alone).
     """
     with np.errstate(divide="ignore"):
         log_u, log_1mu = np.log(u), np.log1p(-u)
@@ -679,7 +703,12 @@ def generalized_mahalanobis_sq_unchecked(
     active = np.flatnonzero(u > 0.0)
     if active.size:
         x_mode[active] = _density_mode(
-            var[active], lam[active], log_u[active], log_1mu[active], bracket
+            var[active],
+            lam[active],
+            log_u[active],
+            log_1mu[active],
+            bracket,
+            None if groups is None else groups[active],
         )
     # Both points in one evaluation: the relative log-density at the mode and at x.
     n = x.size

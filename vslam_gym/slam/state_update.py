@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from vslam_gym.slam.gaussian import Canonical, ensure_spd, symmetrize
+from vslam_gym.slam.gaussian import Canonical, cholesky, symmetrize
 
 POSE_DIM = 3
 REF_DIM = 2
@@ -173,13 +173,15 @@ def augment_landmark(
     sigma_new[:n, :n] = sigma
     sigma_new[n:, :n] = cross
     sigma_new[:n, n:] = cross.T
-    sigma_new[n:, n:] = s_rr
+    sigma_new[n:, n:] = symmetrize(s_rr)
     s_vr = sigma_vv @ select.T
     gain = np.linalg.solve(s_rr, s_vr.T).T
     cond_cov = symmetrize(sigma_vv - gain @ s_vr.T) + shape_sigma**2 * np.eye(b3.size)
     k = symmetrize(np.linalg.inv(cond_cov))
     conditional = LandmarkConditional(A=gain, b=mu_v - gain @ mu_r, K=k)
-    sigma_new = ensure_spd(sigma_new, "state covariance after adding a landmark")
+    # [Sigma, cross^T; cross, s_rr] is positive definite when Sigma is and the Schur
+    # complement s_rr - cross Sigma^-1 cross^T = S cov3 S^T is (no O(n^3) check).
+    cholesky(select @ cov3 @ select.T, "state covariance after adding a landmark")
     return mu_new, sigma_new, conditional
 
 
@@ -240,6 +242,16 @@ def state_space_update(
 
     Raises:
         NotPositiveDefiniteError: ``k2 + k3`` or the result is not positive definite.
+
+    The result is checked on its pose and reference block only (a ``5 x 5`` Cholesky
+    instead of one of the whole state, which costs ``O(n^3)`` and runs multi-threaded
+    BLAS on large maps): for a positive definite prior ``Sigma`` and the positive
+    semi-definite factor ``C(Lambda, eta)`` on the variables ``s``, the Woodbury result
+    ``Sigma - Sigma_:s M Sigma_s:`` (``M = Lambda (I + Sigma_ss Lambda)^-1``) is positive
+    definite exactly when its block ``Sigma'_ss = Sigma_ss - Sigma_ss M Sigma_ss`` is
+    (both reduce to the eigenvalues of ``Sigma_ss M`` lying below 1). A new landmark
+    appends ``r = C x + c + e`` with ``e ~ N(0, Lambda_rr^-1)``, which is positive
+    definite when the updated pose block is.
     """
     phi23 = observation_factor(a2, b2, k2, a3, b3, k3)
     xr = np.arange(POSE_DIM + REF_DIM)
@@ -259,7 +271,11 @@ def state_space_update(
 
     lam, eta = factor.K, factor.h
     if ref is not None:
-        mu_new, sigma_new = _woodbury(mu, sigma, np.r_[pose, ref : ref + REF_DIM], lam, eta)
+        local_idx = np.r_[pose, ref : ref + REF_DIM]
+        mu_new, sigma_new = _woodbury(mu, sigma, local_idx, lam, eta)
+        cholesky(
+            sigma_new[np.ix_(local_idx, local_idx)], "state covariance after the landmark update"
+        )
     else:
         lam_rr = lam[3:, 3:]
         chol = (np.linalg.cholesky(lam_rr), True)
@@ -276,6 +292,6 @@ def state_space_update(
         cross = c_mat @ sigma_x[:3, :]
         sigma_new[n:, :n] = cross
         sigma_new[:n, n:] = cross.T
-        sigma_new[n:, n:] = c_mat @ sigma_x[:3, :3] @ c_mat.T + e_cov
-    sigma_new = ensure_spd(sigma_new, "state covariance after the landmark update")
+        sigma_new[n:, n:] = symmetrize(c_mat @ sigma_x[:3, :3] @ c_mat.T + e_cov)
+        cholesky(sigma_x[:3, :3], "state covariance after the landmark update")
     return mu_new, sigma_new, conditional

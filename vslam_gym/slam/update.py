@@ -1663,6 +1663,7 @@ def update_model(
     association=None,
     *,
     object_vertices: tuple[int, int] | None = None,
+    finish: bool = True,
 ) -> ModelUpdate:
     """Update ``model`` with beams ``first..last`` of ``scan`` taken at a known ``pose``.
 
@@ -1689,6 +1690,12 @@ def update_model(
         object_vertices: ``(start, stop)`` of the model's object vertices
             (``ModelFit.object_vertices`` or the previous ``ModelUpdate``'s); inferred
             from ``u`` when None (:func:`infer_object_vertices`).
+        finish: run Algorithm 7 and wrapping (:func:`update_unknown_lines`,
+            :func:`wrap_model`) on the posterior. The SLAM filter passes False: it
+            uses ``F``, ``K_obs``, ``A_vx``, ``b_vx``, ``posterior`` and ``chains`` and
+            runs both steps itself on its own posterior at the updated pose. Then
+            ``model`` is ``posterior``, ``unknown`` and ``wrap`` are None and
+            ``object_vertices`` spans the posterior's first to last object line.
 
     Returns:
         The update (posterior model, ``F``, ``K_obs``, ``h_obs``, ``G``, ``A_vx``,
@@ -1784,16 +1791,21 @@ def update_model(
             beams=(params.runs[0].first_beam, params.runs[-1].last_beam),
             prior_points=points,
         )
-        unknown = update_unknown_lines(posterior, chains, scan, pose, sensor, config, lin)
-        wrap = wrap_model(unknown.model, unknown.object_vertices, config)
-        final = wrap.model
-        if wrap.wrapped:
-            object_range = (0, final.n_vertices)
+        if finish:
+            unknown = update_unknown_lines(posterior, chains, scan, pose, sensor, config, lin)
+            wrap = wrap_model(unknown.model, unknown.object_vertices, config)
+            final = wrap.model
+            if wrap.wrapped:
+                object_range = (0, final.n_vertices)
+            else:
+                object_range = unknown.object_vertices
         else:
-            object_range = unknown.object_vertices
-    final = LandmarkModel(
-        final.mean, ensure_spd(final.cov, "updated vertex covariance"), final.u, final.closed
-    )
+            obj = np.flatnonzero(posterior.u <= config.unknown_threshold)
+            object_range = (int(obj[0]), int(obj[-1]) + 2) if obj.size else (0, 0)
+    if finish:
+        final = LandmarkModel(
+            final.mean, ensure_spd(final.cov, "updated vertex covariance"), final.u, final.closed
+        )
     observed = obs.observed
     if prior.closed:  # back to the input's line order; the closing line had no beams
         observed = np.roll(np.append(observed, False), c + 1)
