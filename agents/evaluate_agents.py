@@ -51,7 +51,13 @@ import numpy as np  # noqa: E402
 
 import vslam_gym  # noqa: E402
 from agents.scripted import SCRIPTED_AGENTS, Agent, make_agent  # noqa: E402
-from vslam_gym.evaluation import machine_description, pose_nees, position_ate_rmse  # noqa: E402
+from vslam_gym.evaluation import (  # noqa: E402
+    json_safe,
+    machine_description,
+    pose_nees,
+    position_ate_rmse,
+    progress_bar,
+)
 from vslam_gym.exploration import boundary_samples, coverage  # noqa: E402
 
 gym.register_envs(vslam_gym)
@@ -295,18 +301,6 @@ def mean_metrics(per_episode: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     return out
 
 
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, Mapping):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def format_table(result: Mapping[str, Any]) -> str:
     """A markdown table: one row per episode and the mean."""
 
@@ -411,7 +405,7 @@ def evaluate_agent(
     env = gym.make(spec, **kwargs)
     horizon = env.spec.max_episode_steps if env.spec is not None else None
     horizon = max_steps or horizon
-    bar = _progress_bar(episodes * horizon if horizon else None, progress)
+    bar = progress_bar(episodes * horizon if horizon else None, "evaluate", progress, leave=True)
     per_episode, rows, frames = [], [], []
     try:
         for i in range(episodes):
@@ -448,7 +442,7 @@ def evaluate_agent(
         "per_episode": per_episode,
         "mean": mean_metrics(per_episode),
     }
-    summary = _json_safe(summary)
+    summary = json_safe(summary)
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -458,16 +452,6 @@ def evaluate_agent(
         if video:
             save_gif(frames, out / "episode.gif", cfg)
     return summary
-
-
-def _progress_bar(total: int | None, enabled: bool) -> Any:
-    if not enabled:
-        return None
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        return None
-    return tqdm(total=total, desc="evaluate", unit="step", file=sys.stderr)
 
 
 # ---------------------------------------------------------------------------- command line

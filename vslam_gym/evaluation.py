@@ -64,14 +64,19 @@ __all__ = [
     "final_position_error",
     "format_table",
     "heading_rmse",
+    "json_safe",
     "landmark_majority_ids",
+    "machine_description",
     "majority_id",
     "mean_nees_interval",
     "nees_summary",
     "parse_seeds",
     "pose_nees",
     "position_ate_rmse",
+    "progress_bar",
     "run_episode",
+    "sensor_from_lidar",
+    "slam_config",
     "timing_summary",
     "write_tum",
     "yaw_quaternion",
@@ -804,12 +809,12 @@ def plot_nees(log: EpisodeLog, path: str | os.PathLike[str]) -> None:
 # ---------------------------------------------------------------------------- evaluate
 
 
-def _json_safe(value: Any) -> Any:
-    """Replace NaN/inf by None (strict JSON) and numpy scalars by Python ones."""
+def json_safe(value: Any) -> Any:
+    """Replace NaN/inf by None (strict JSON), numpy scalars by Python ones, keys by str."""
     if isinstance(value, Mapping):
-        return {k: _json_safe(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
+        return [json_safe(v) for v in value]
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
@@ -817,15 +822,15 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
-def _progress_bar(total: int | None, desc: str, enabled: bool) -> Any:
-    """A tqdm bar when tqdm is installed and ``enabled``, else None."""
+def progress_bar(total: int | None, desc: str, enabled: bool, leave: bool = False) -> Any:
+    """A tqdm bar (on stderr, in steps) when tqdm is installed and ``enabled``, else None."""
     if not enabled:
         return None
     try:
         from tqdm import tqdm
     except ImportError:
         return None
-    return tqdm(total=total, desc=desc, unit="step", leave=False, file=sys.stderr)
+    return tqdm(total=total, desc=desc, unit="step", leave=leave, file=sys.stderr)
 
 
 def save_episode(log: EpisodeLog, out_dir: Path) -> list[Path]:
@@ -893,7 +898,7 @@ def evaluate(
     out.mkdir(parents=True, exist_ok=True)
     per_seed = []
     for seed in seeds:
-        bar = _progress_bar(max_steps, f"{world} seed {seed}", progress)
+        bar = progress_bar(max_steps, f"{world} seed {seed}", progress)
 
         def tick(step: int, belief: Belief, bar: Any = bar) -> None:
             bar.update(1)
@@ -914,7 +919,7 @@ def evaluate(
         "per_seed": per_seed,
         "mean": mean_metrics(per_seed),
     }
-    result = _json_safe(result)
+    result = json_safe(result)
     (out / "metrics.json").write_text(json.dumps(result, indent=2) + "\n")
     if print_table:
         print(format_table(result))
