@@ -164,9 +164,14 @@ def belief_segments(belief: Belief, unknown_threshold: float) -> dict[str, np.nd
     }
 
 
-def object_boundary_length(belief: Belief, unknown_threshold: float) -> float:
-    """Total length [m] of the belief's object lines (``u <= unknown_threshold``)."""
-    seg = belief_segments(belief, unknown_threshold)
+def object_boundary_length(
+    belief: Belief, unknown_threshold: float, segments: dict[str, np.ndarray] | None = None
+) -> float:
+    """Total length [m] of the belief's object lines (``u <= unknown_threshold``).
+
+    ``segments``: the belief's :func:`belief_segments`, if already computed.
+    """
+    seg = belief_segments(belief, unknown_threshold) if segments is None else segments
     known = ~seg["unknown"]
     return float(np.linalg.norm(seg["end"][known] - seg["start"][known], axis=1).sum())
 
@@ -198,9 +203,14 @@ class BeliefRaster:
         n = int(self.config.raster_size)
         return spaces.Box(0, 255, shape=(len(RASTER_CHANNELS), n, n), dtype=np.uint8)
 
-    def observe(self, belief: Belief) -> np.ndarray:
-        """Rasterise ``belief`` around ``belief.pose`` (the lidar pose)."""
-        return self.rasterize(belief_segments(belief, self.unknown_threshold), belief.pose)
+    def observe(self, belief: Belief, segments: dict[str, np.ndarray] | None = None) -> np.ndarray:
+        """Rasterise ``belief`` around ``belief.pose`` (the lidar pose).
+
+        ``segments``: the belief's :func:`belief_segments`, if already computed.
+        """
+        if segments is None:
+            segments = belief_segments(belief, self.unknown_threshold)
+        return self.rasterize(segments, belief.pose)
 
     def rasterize(self, seg: dict[str, np.ndarray], pose: np.ndarray) -> np.ndarray:
         """Rasterise segments (as :func:`belief_segments` returns) around ``pose``."""

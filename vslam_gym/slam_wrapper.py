@@ -183,6 +183,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._reward = BeliefReward(self.reward_config)
         self._slam: VertexSLAM | None = None
         self._belief: Belief | None = None
+        self._segments: dict[str, np.ndarray] = {}  # belief_segments of the latest belief
         self._steps_since_association = 0
 
     # ------------------------------------------------------------------ API
@@ -215,6 +216,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             self._belief = self._slam.belief
         self._steps_since_association = 0
+        self._segments = belief_segments(self._belief, self._unknown_threshold)
         self._reward.reset(self._belief.pose_cov, self._boundary_length())
         info = self._info(info, {}, 0.0)
         return self._observe(obs), info
@@ -231,6 +233,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._steps_since_association = 0
         else:
             self._steps_since_association += 1
+        self._segments = belief_segments(self._belief, self._unknown_threshold)
         rewards = self._reward.step(
             self._belief.pose_cov, self._boundary_length(), bool(info["collision"])
         )
@@ -240,7 +243,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     # ------------------------------------------------------------------ pieces
 
     def _boundary_length(self) -> float:
-        return object_boundary_length(self._belief, self._unknown_threshold)
+        return object_boundary_length(self._belief, self._unknown_threshold, self._segments)
 
     def _observe(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         belief = self._belief
@@ -248,7 +251,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return {
             "scan": scan,
             "pose_uncertainty": self._pose_features.observe(belief.pose, belief.pose_cov),
-            "belief_map": self._raster.observe(belief),
+            "belief_map": self._raster.observe(belief, self._segments),
             "status": self._status.observe(len(belief.landmarks), self._steps_since_association),
         }
 
