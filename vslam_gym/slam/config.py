@@ -293,6 +293,12 @@ class FilterConfig:
         observation_information_scale: the observation's information ``K_obs`` (``K3``)
             is multiplied by this in the state-space update (1 in the thesis); below 1
             it discounts the model errors the vertex covariances do not describe.
+        min_object_beam_fraction: a candidate landmark that passes the detection test is
+            still rejected when fewer than this fraction of the set's beams are assigned
+            to its object lines (``u <= unknown_threshold``); 0 in the thesis. A set that
+            fits a model only through its unknown lines (free-space boundaries, whose
+            likelihood is broad) says little about the landmark: in ``house`` most wrong
+            associations had no beam on an object line.
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -312,8 +318,14 @@ class FilterConfig:
     unknown_chain_max_vertices: int = 4
     unknown_chain_tolerance: float = 0.3
     observation_information_scale: float = 1.0
+    min_object_beam_fraction: float = 0.0
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.min_object_beam_fraction <= 1.0:
+            raise ValueError(
+                "FilterConfig.min_object_beam_fraction must lie in [0, 1], got "
+                f"{self.min_object_beam_fraction!r}"
+            )
         if self.new_landmark not in ("thesis", "augment", "halved"):
             raise ValueError(
                 f"FilterConfig.new_landmark must be 'thesis' or 'augment', got "

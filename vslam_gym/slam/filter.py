@@ -496,8 +496,9 @@ class VertexSLAM:
             )
             for (c, res), det in zip(tested, dets, strict=True):
                 lm, model = lms[c], self._model(lms[c])
-                tried[c] = (lm.id, res.reason, det.mean_d2, det.var_d2, det.accepted)
-                if not det.accepted:
+                accepted = det.accepted and self._enough_object_beams(det)
+                tried[c] = (lm.id, res.reason, det.mean_d2, det.var_d2, accepted)
+                if not accepted:
                     continue
                 score = det.loglik + log_norm - 0.5 * m2s[c]
                 if score > best_score:
@@ -519,6 +520,14 @@ class VertexSLAM:
         if best is not None:
             best.candidates = done
         return best, done
+
+    def _enough_object_beams(self, det) -> bool:
+        """At least ``min_object_beam_fraction`` of the set's beams on object lines."""
+        fraction = self.config.filter.min_object_beam_fraction
+        if fraction <= 0.0:
+            return True
+        on_object = det.association.u <= self.config.model.unknown_threshold
+        return bool(np.mean(on_object) >= fraction)
 
     def _measurement_update(self, scan: Scan):
         cfg = self.config.filter
