@@ -16,9 +16,15 @@ from vslam_gym.belief_observation import (
     BeliefObservationConfig,
     BeliefRaster,
     PoseUncertainty,
-    object_boundary_length,
+    belief_segments,
+    boundary_cells,
 )
-from vslam_gym.belief_reward import BeliefRewardConfig, d_optimality, pose_entropy
+from vslam_gym.belief_reward import (
+    BeliefReward,
+    BeliefRewardConfig,
+    d_optimality,
+    pose_entropy,
+)
 from vslam_gym.env import LidarWorldEnv
 from vslam_gym.sim.world import CircleObstacle
 from vslam_gym.sim.world_file import load_world, world_to_toml
@@ -120,10 +126,47 @@ def test_d_opt_and_coverage_presets():
         assert reward == pytest.approx(expected, rel=1e-9)
         assert 0.0 < info["rewards"]["d_opt"] <= 1.0
     env = SlamWrapper(gym.make("VSlam/LidarWorld-v0", world="small"), reward="coverage")
-    _, rewards, infos = _rollout(env, seed=0, n=15)
-    assert all(set(i["rewards"]) == {"new_boundary"} for i in infos[1:])
-    assert all(r >= 0.0 for r in rewards)
-    assert sum(rewards) == pytest.approx(object_boundary_length(env.belief, 0.5), rel=1e-9)
+    env.reset(seed=0)
+    covered: set[int] = set()
+    total = 0.0
+    for action in _actions(15):
+        _, reward, _, _, info = env.step(action)
+        assert set(info["rewards"]) == {"new_boundary"}
+        cells = set(boundary_cells(belief_segments(env.belief, 0.5), 0.25).tolist())
+        assert reward == pytest.approx(0.25 * len(cells - covered), abs=1e-12)
+        covered |= cells
+        total += reward
+    assert total > 1.0, "walls were modelled"
+    assert total == pytest.approx(0.25 * len(covered), abs=1e-9)
+
+
+def _segments(*lines: tuple[tuple[float, float], tuple[float, float]], unknown=None) -> dict:
+    start = np.array([a for a, _ in lines], dtype=float)
+    end = np.array([b for _, b in lines], dtype=float)
+    flags = np.zeros(len(lines), bool) if unknown is None else np.array(unknown, dtype=bool)
+    return {"start": start, "end": end, "unknown": flags}
+
+
+def test_new_boundary_pays_each_cell_once_so_duplicates_earn_nothing():
+    reward = BeliefReward(BeliefRewardConfig.preset("coverage"))
+    reward.reset(np.eye(3), boundary_cells(_segments(), 0.25))
+    wall = ((0.1, 0.1), (10.1, 0.1))
+    first = reward.step(np.eye(3), boundary_cells(_segments(wall), 0.25), False)
+    assert first["new_boundary"] == pytest.approx(10.25)  # 41 cells of 0.25 m along 10 m
+    # A duplicate landmark of the same wall, 5 cm off, and the wall's unknown
+    # continuation: nothing new.
+    duplicate = ((0.1, 0.15), (10.1, 0.15))
+    unknown = ((10.1, 0.1), (20.1, 0.1))
+    cells = boundary_cells(_segments(wall, duplicate, unknown, unknown=[0, 0, 1]), 0.25)
+    assert reward.step(np.eye(3), cells, False)["new_boundary"] == 0.0
+    # The wall seen 5 m further: about 5 m of new boundary.
+    longer = boundary_cells(_segments(((0.1, 0.1), (15.1, 0.1))), 0.25)
+    assert reward.step(np.eye(3), longer, False)["new_boundary"] == pytest.approx(5.0)
+    # A wall that disappears from the map and comes back is not paid twice.
+    reward.step(np.eye(3), boundary_cells(_segments(), 0.25), False)
+    assert reward.step(np.eye(3), longer, False)["new_boundary"] == 0.0
+    with pytest.raises(ValueError, match="boundary_cell"):
+        BeliefRewardConfig(boundary_cell=0.0)
 
 
 def test_custom_weights_and_bad_configuration():

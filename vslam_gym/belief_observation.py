@@ -176,6 +176,52 @@ def object_boundary_length(
     return float(np.linalg.norm(seg["end"][known] - seg["start"][known], axis=1).sum())
 
 
+def sample_segments(
+    start: np.ndarray, end: np.ndarray, spacing: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points along segments, at most ``spacing`` apart, both ends included.
+
+    Args:
+        start, end: ``(n, 2)`` segment end points [m].
+        spacing: largest distance [m] between consecutive samples of a segment.
+
+    Returns:
+        ``points`` ``(m, 2)`` [m], ``line`` ``(m,)`` the segment of each sample and ``t``
+        ``(m,)`` its position along the segment in ``[0, 1]``.
+    """
+    counts = np.maximum(np.ceil(np.linalg.norm(end - start, axis=1) / spacing).astype(int), 1) + 1
+    line = np.repeat(np.arange(start.shape[0]), counts)
+    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    t = (np.arange(line.size) - offsets[line]) / (counts[line] - 1)
+    points = start[line] + t[:, None] * (end - start)[line]
+    return points, line, t
+
+
+_CELL_OFFSET = 1 << 30
+"""Cell indices are shifted by this before packing two of them into one int64 key."""
+
+
+def boundary_cells(segments: dict[str, np.ndarray], cell: float) -> np.ndarray:
+    """Cells of a world-frame grid that the object lines pass through, as sorted keys.
+
+    Args:
+        segments: :func:`belief_segments` of a belief (unknown lines are ignored).
+        cell: side of a grid cell [m]; the grid is aligned with the world (map) frame,
+            cell ``(i, j)`` covering ``[i cell, (i + 1) cell) x [j cell, (j + 1) cell)``.
+
+    Returns:
+        ``(k,)`` int64 sorted unique keys ``(i + 2^30) 2^31 + (j + 2^30)``: only for set
+        operations between calls (a cell is marked when a sample taken every half cell
+        along a line falls into it).
+    """
+    known = ~np.asarray(segments["unknown"], dtype=bool)
+    if not known.any():
+        return np.zeros(0, dtype=np.int64)
+    points, _, _ = sample_segments(segments["start"][known], segments["end"][known], 0.5 * cell)
+    ij = np.floor(points / cell).astype(np.int64) + _CELL_OFFSET
+    return np.unique(ij[:, 0] * (2 * _CELL_OFFSET) + ij[:, 1])
+
+
 class BeliefRaster:
     """Egocentric image of the belief map: ``uint8`` ``(3, H, W)``.
 
@@ -223,12 +269,7 @@ class BeliefRaster:
         rot = np.array([[cos, sin], [-sin, cos]])  # world -> robot (forward, left)
         a = (seg["start"] - pose[:2]) @ rot.T
         b = (seg["end"] - pose[:2]) @ rot.T
-        step = 0.5 * c.raster_cell
-        counts = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / step).astype(int), 1) + 1
-        line = np.repeat(np.arange(a.shape[0]), counts)
-        offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        t = (np.arange(line.size) - offsets[line]) / (counts[line] - 1)
-        points = a[line] + t[:, None] * (b - a)[line]
+        points, line, t = sample_segments(a, b, 0.5 * c.raster_cell)
         half = 0.5 * n
         rows = np.floor(half - points[:, 0] / c.raster_cell).astype(int)
         cols = np.floor(half - points[:, 1] / c.raster_cell).astype(int)

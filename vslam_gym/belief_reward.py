@@ -29,14 +29,21 @@ class BeliefRewardConfig:
         pose_information: weight of ``pose_information``, the decrease of the pose
             entropy over the step, ``0.5 (log det S_prev - log det S)`` [nat], ``S`` the
             3x3 pose covariance (x [m], y [m], theta [rad]).
-        new_boundary: weight of ``new_boundary`` [per m], the growth of the total
-            modelled object-line length beyond its largest value so far in the episode.
+        new_boundary: weight of ``new_boundary`` [per m], the object boundary modelled
+            for the first time in the episode: the number of cells of a world-frame grid
+            (side ``boundary_cell``) that an object line passes through for the first
+            time, times the cell side (about the length of newly modelled boundary; up to
+            1.4 times it for a diagonal line). A duplicate landmark of a boundary that is
+            already modelled earns nothing (in earlier versions the growth of the total
+            object-line length paid for every duplicate again, and PPO learned to make
+            duplicates).
         collision: penalty of ``collision`` for a step in which the robot touched an
             obstacle (the robot feels its bumper; that is not map ground truth).
         time: cost of ``time`` per step.
         d_opt: weight of ``d_opt``, ``tanh(d_opt_eta / D_opt)`` with
             ``D_opt = exp(mean(log eig(S)))`` (Placed and Castellanos, 2020).
         d_opt_eta: the scale ``eta`` of the ``d_opt`` term.
+        boundary_cell: grid cell side [m] of ``new_boundary``.
     """
 
     pose_information: float = 1.0
@@ -45,6 +52,7 @@ class BeliefRewardConfig:
     time: float = 0.01
     d_opt: float = 0.0
     d_opt_eta: float = 0.01
+    boundary_cell: float = 0.25
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -54,6 +62,10 @@ class BeliefRewardConfig:
         for name in ("collision", "time", "d_opt_eta"):
             if getattr(self, name) < 0:
                 raise ValueError(f"BeliefRewardConfig.{name} must be >= 0")
+        if self.boundary_cell <= 0:
+            raise ValueError(
+                f"BeliefRewardConfig.boundary_cell must be > 0 [m], got {self.boundary_cell!r}"
+            )
 
     @classmethod
     def preset(cls, name: str) -> BeliefRewardConfig:
@@ -114,15 +126,19 @@ class BeliefReward:
     def __init__(self, config: BeliefRewardConfig) -> None:
         self.config = config
         self._entropy = 0.0
-        self._best_boundary = 0.0
+        self._cells = np.zeros(0, dtype=np.int64)
 
-    def reset(self, pose_cov: np.ndarray, boundary_length: float) -> None:
-        """Start an episode from the belief after ``reset``."""
+    def reset(self, pose_cov: np.ndarray, boundary_cells: np.ndarray) -> None:
+        """Start an episode from the belief after ``reset``.
+
+        ``boundary_cells``: the belief's object-line cells at ``config.boundary_cell``
+        (:func:`vslam_gym.belief_observation.boundary_cells`).
+        """
         self._entropy = pose_entropy(pose_cov)
-        self._best_boundary = float(boundary_length)
+        self._cells = np.asarray(boundary_cells, dtype=np.int64)
 
     def step(
-        self, pose_cov: np.ndarray, boundary_length: float, collision: bool
+        self, pose_cov: np.ndarray, boundary_cells: np.ndarray, collision: bool
     ) -> dict[str, float]:
         """Named, weighted reward terms of one step (their sum is the reward)."""
         c = self.config
@@ -131,10 +147,11 @@ class BeliefReward:
         if c.pose_information:
             terms["pose_information"] = c.pose_information * (self._entropy - entropy)
         self._entropy = entropy
+        new = np.setdiff1d(boundary_cells, self._cells, assume_unique=True)
         if c.new_boundary:
-            grown = max(0.0, float(boundary_length) - self._best_boundary)
-            terms["new_boundary"] = c.new_boundary * grown
-        self._best_boundary = max(self._best_boundary, float(boundary_length))
+            terms["new_boundary"] = c.new_boundary * c.boundary_cell * new.size
+        if new.size:
+            self._cells = np.union1d(self._cells, new)
         if c.collision:
             terms["collision"] = -c.collision if collision else 0.0
         if c.time:

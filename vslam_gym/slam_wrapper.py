@@ -17,7 +17,7 @@ from vslam_gym.belief_observation import (
     PoseUncertainty,
     SlamStatus,
     belief_segments,
-    object_boundary_length,
+    boundary_cells,
 )
 from vslam_gym.belief_reward import BeliefReward, BeliefRewardConfig
 from vslam_gym.config_utils import dataclass_from_dict
@@ -88,8 +88,9 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     | Term               | Formula (weight ``w``)                                     |
     |--------------------|------------------------------------------------------------|
     | `pose_information` | ``w * 0.5 (log det S_prev - log det S)`` (entropy decrease) |
-    | `new_boundary`     | ``w * max(0, L - max L so far)``, ``L`` the modelled object |
-    |                    | line length [m]                                            |
+    | `new_boundary`     | ``w * c * (cells newly crossed by object lines)``: a world- |
+    |                    | frame grid of side ``c`` (0.25 m), each cell paid once per |
+    |                    | episode, so duplicate landmarks earn nothing               |
     | `collision`        | ``-w`` if the robot touched an obstacle this step          |
     | `time`             | ``-w`` per step                                            |
     | `d_opt`            | ``w * tanh(eta / D_opt)``, ``D_opt = exp(mean log eig S)``   |
@@ -217,7 +218,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._belief = self._slam.belief
         self._steps_since_association = 0
         self._segments = belief_segments(self._belief, self._unknown_threshold)
-        self._reward.reset(self._belief.pose_cov, self._boundary_length())
+        self._reward.reset(self._belief.pose_cov, self._boundary_cells())
         info = self._info(info, {}, 0.0)
         return self._observe(obs), info
 
@@ -235,15 +236,15 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._steps_since_association += 1
         self._segments = belief_segments(self._belief, self._unknown_threshold)
         rewards = self._reward.step(
-            self._belief.pose_cov, self._boundary_length(), bool(info["collision"])
+            self._belief.pose_cov, self._boundary_cells(), bool(info["collision"])
         )
         info = self._info(info, rewards, float(env_reward))
         return self._observe(obs), float(sum(rewards.values())), terminated, truncated, info
 
     # ------------------------------------------------------------------ pieces
 
-    def _boundary_length(self) -> float:
-        return object_boundary_length(self._belief, self._unknown_threshold, self._segments)
+    def _boundary_cells(self) -> np.ndarray:
+        return boundary_cells(self._segments, self.reward_config.boundary_cell)
 
     def _observe(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         belief = self._belief
