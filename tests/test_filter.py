@@ -153,3 +153,45 @@ def test_references_are_stored_in_creation_order():
     np.testing.assert_array_equal(
         slam._refs(), [slam._mu[lm.ref : lm.ref + 2] for lm in slam._landmarks]
     )
+
+
+# ----------------------------------------------------------------- association gates
+
+
+def _kidnapped_update(config):
+    """Map the first object from (0, 0, 0); then odometry says "no motion" but the robot
+    was 0.4 m further on: the re-observation's ICP correction is 0.4 m."""
+    slam = VertexSLAM(SENSOR, config, initial_pose=(0.0, 0.0, 0.0))
+    rng = np.random.default_rng(0)
+    edges = polygon_edges(OBJECTS[:2])
+    noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+    first = slam.step([0.0, 0.0, 0.0], cast(np.zeros(3), edges, PHI, *noise), PHI)
+    assert "created" in {d.outcome for d in first.decisions}
+    moved = np.array([0.4, 0.0, 0.0])
+    return slam.step([0.0, 0.0, 0.0], cast(moved, edges, PHI, *noise), PHI)
+
+
+def test_icp_gate_floor_rejects_gross_corrections_and_keeps_plausible_ones():
+    ungated = _kidnapped_update(SlamConfig())
+    assert "updated" in {d.outcome for d in ungated.decisions}
+
+    def gated(floor):
+        cfg = SlamConfig.from_dict(
+            {"filter": {"icp_max_pose_mahalanobis": 3.0, "icp_gate_sigma_floor": floor}}
+        )
+        return _kidnapped_update(cfg)
+
+    tight = gated([0.1, 0.1, 0.05])  # 0.4 m is 4 sigma: rejected, the map is kept apart
+    assert "updated" not in {d.outcome for d in tight.decisions}
+    assert len(tight.landmarks) > len(ungated.landmarks)  # modelled again instead
+    loose = gated([0.3, 0.3, 0.1])  # 0.4 m is 1.3 sigma: accepted
+    assert "updated" in {d.outcome for d in loose.decisions}
+    np.testing.assert_allclose(loose.pose, ungated.pose, atol=1e-9)
+    with pytest.raises(ValueError, match="icp_gate_sigma_floor"):
+        SlamConfig.from_dict({"filter": {"icp_gate_sigma_floor": [0.1, -0.1, 0.0]}})
+
+
+def test_min_object_beam_fraction_is_validated_and_off_in_the_thesis():
+    assert SlamConfig.thesis().filter.min_object_beam_fraction == 0.0
+    with pytest.raises(ValueError, match="min_object_beam_fraction"):
+        SlamConfig.from_dict({"filter": {"min_object_beam_fraction": 1.5}})

@@ -263,6 +263,12 @@ class FilterConfig:
             ``tests/test_filter.py`` the overconfident pose covariance then rejects
             correct associations (28 landmarks for 4 objects instead of 7); it becomes a
             default once the pose covariance is consistent.
+        icp_gate_sigma_floor: standard deviations ``(x [m], y [m], theta [rad])`` added in
+            quadrature to the pose covariance in the ``icp_max_pose_mahalanobis`` gate
+            only (not in the association score), so that the gate catches gross ICP
+            failures (in ``house``, seed 0, step 119: a 3.7 m / 175 deg "correction" at
+            a pose standard deviation of 1 cm / 0.7 deg flipped the map) without
+            depending on the overconfident covariance. Zeros: the plain gate.
         candidate_max_median_distance: a candidate landmark is aligned (ICP) and tested
             only when the median distance [m] of the set's points, at the predicted
             pose, to its nearest model lines is at most this; ``inf`` (the thesis)
@@ -312,6 +318,7 @@ class FilterConfig:
     min_object_lines: int = 2
     min_beams_per_object_line: int = 2
     icp_max_pose_mahalanobis: float = float("inf")
+    icp_gate_sigma_floor: tuple[float, float, float] = (0.0, 0.0, 0.0)
     candidate_max_median_distance: float = 1.5
     new_landmark: str = "thesis"
     shape_sigma: float = 1e-3
@@ -321,6 +328,12 @@ class FilterConfig:
     min_object_beam_fraction: float = 0.0
 
     def __post_init__(self) -> None:
+        floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
+        if floor.shape != (3,) or not np.all(np.isfinite(floor)) or np.any(floor < 0):
+            raise ValueError(
+                "FilterConfig.icp_gate_sigma_floor must be 3 finite numbers >= 0, got "
+                f"{self.icp_gate_sigma_floor!r}"
+            )
         if not 0.0 <= self.min_object_beam_fraction <= 1.0:
             raise ValueError(
                 "FilterConfig.min_object_beam_fraction must lie in [0, 1], got "

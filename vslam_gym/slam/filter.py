@@ -464,9 +464,14 @@ class VertexSLAM:
         tried: list[tuple | None] = [None] * len(lms)
         for c in np.setdiff1d(np.arange(len(lms)), work.aligned):
             tried[c] = (lms[c].id, "far", np.nan, np.nan, False)
+        cfg = self.config.filter
         cov_x = self._sigma[:3, :3]
         chol = np.linalg.cholesky(cov_x)
         log_norm = -0.5 * (3 * np.log(2 * np.pi)) - np.log(np.diag(chol)).sum()
+        gate = np.isfinite(cfg.icp_max_pose_mahalanobis)
+        if gate:
+            floor = np.asarray(cfg.icp_gate_sigma_floor, dtype=float)
+            chol_gate = np.linalg.cholesky(cov_x + np.diag(floor**2)) if floor.any() else chol
         tested, m2s = [], {}
         for c, res in zip(work.aligned, results, strict=True):
             if not np.all(np.isfinite(res.pose)):
@@ -475,7 +480,9 @@ class VertexSLAM:
             d[2] = wrap_angle(d[2])
             white = np.linalg.solve(chol, d)
             m2 = float(white @ white)
-            if np.sqrt(m2) > self.config.filter.icp_max_pose_mahalanobis:
+            if gate and np.linalg.norm(np.linalg.solve(chol_gate, d)) > (
+                cfg.icp_max_pose_mahalanobis
+            ):
                 tried[c] = (lms[c].id, res.reason, np.nan, np.nan, False)
                 continue
             tested.append((c, res))
