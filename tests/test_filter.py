@@ -184,6 +184,22 @@ def test_icp_gate_floor_rejects_gross_corrections_and_keeps_plausible_ones():
     tight = gated([0.1, 0.1, 0.05])  # 0.4 m is 4 sigma: rejected, the map is kept apart
     assert "updated" not in {d.outcome for d in tight.decisions}
     assert len(tight.landmarks) > len(ungated.landmarks)  # modelled again instead
+    # With the fallback the gated candidates are tested at the predicted pose, where
+    # the scan (taken 0.4 m further on) does not fit the map either.
+    fallback = _kidnapped_update(
+        SlamConfig.from_dict(
+            {
+                "filter": {
+                    "icp_max_pose_mahalanobis": 3.0,
+                    "icp_gate_sigma_floor": [0.1, 0.1, 0.05],
+                    "icp_gate_fallback": True,
+                }
+            }
+        )
+    )
+    tested = [c for d in fallback.decisions for c in d.candidates if c[1] == "gated"]
+    assert tested and all(np.isfinite(c[2]) and not c[4] for c in tested)
+    assert len(fallback.landmarks) == len(tight.landmarks)
     loose = gated([0.3, 0.3, 0.1])  # 0.4 m is 1.3 sigma: accepted
     assert "updated" in {d.outcome for d in loose.decisions}
     np.testing.assert_allclose(loose.pose, ungated.pose, atol=1e-9)

@@ -269,6 +269,11 @@ class FilterConfig:
             failures (in ``house``, seed 0, step 119: a 3.7 m / 175 deg "correction" at
             a pose standard deviation of 1 cm / 0.7 deg flipped the map) without
             depending on the overconfident covariance. Zeros: the plain gate.
+        icp_gate_fallback: a candidate whose ICP result fails the gate is tested (and,
+            if chosen, updated) at the predicted pose instead of being dropped (its
+            decision's ICP reason reads ``"gated"``). ICP diverges where a landmark
+            gives it no hold (a disc, a symmetric shape); the prediction is then the
+            better pose, and dropping the candidate models the object again.
         candidate_max_median_distance: a candidate landmark is aligned (ICP) and tested
             only when the median distance [m] of the set's points, at the predicted
             pose, to its nearest model lines is at most this; ``inf`` (the thesis)
@@ -319,6 +324,7 @@ class FilterConfig:
     min_beams_per_object_line: int = 2
     icp_max_pose_mahalanobis: float = float("inf")
     icp_gate_sigma_floor: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    icp_gate_fallback: bool = False
     candidate_max_median_distance: float = 1.5
     new_landmark: str = "thesis"
     shape_sigma: float = 1e-3

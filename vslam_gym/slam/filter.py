@@ -157,7 +157,10 @@ class SetDecision:
             numerical failure; the state was left as before this set).
         landmark: the landmark id it was associated with or created as, else -1.
         candidates: per landmark tried: ``(id, icp_reason, mean_d2, var_d2, accepted)``
-            (detection statistics at the ICP pose; NaN when not tested).
+            (detection statistics at the ICP pose; NaN when not tested). ``icp_reason``
+            is the ICP's stop reason, ``"far"`` when not aligned, or ``"gated"`` when the
+            ICP pose failed the plausibility gate and the predicted pose was tested
+            (``FilterConfig.icp_gate_fallback``).
     """
 
     first: int
@@ -472,7 +475,8 @@ class VertexSLAM:
         if gate:
             floor = np.asarray(cfg.icp_gate_sigma_floor, dtype=float)
             chol_gate = np.linalg.cholesky(cov_x + np.diag(floor**2)) if floor.any() else chol
-        tested, m2s = [], {}
+        tested: list[tuple[int, np.ndarray, str]] = []  # (candidate, pose to test, reason)
+        m2s = {}
         for c, res in zip(work.aligned, results, strict=True):
             if not np.all(np.isfinite(res.pose)):
                 continue
@@ -480,31 +484,34 @@ class VertexSLAM:
             d[2] = wrap_angle(d[2])
             white = np.linalg.solve(chol, d)
             m2 = float(white @ white)
+            test_pose, reason = res.pose, res.reason
             if gate and np.linalg.norm(np.linalg.solve(chol_gate, d)) > (
                 cfg.icp_max_pose_mahalanobis
             ):
-                tried[c] = (lms[c].id, res.reason, np.nan, np.nan, False)
-                continue
-            tested.append((c, res))
+                if not cfg.icp_gate_fallback:
+                    tried[c] = (lms[c].id, res.reason, np.nan, np.nan, False)
+                    continue
+                test_pose, reason, m2 = pose, "gated", 0.0
+            tested.append((c, test_pose, reason))
             m2s[c] = m2
         best, best_score = None, -np.inf
         if tested:
             dets = detect_many(
-                [self._model(lms[c]) for c, _ in tested],
+                [self._model(lms[c]) for c, _, _ in tested],
                 scan,
                 work.first,
                 work.last,
-                np.array([res.pose for _, res in tested]),
+                np.array([p for _, p, _ in tested]),
                 self.sensor,
                 self.config.model,
                 self._lin,
                 lam,
-                parts=[self._parts(lms[c]) for c, _ in tested],
+                parts=[self._parts(lms[c]) for c, _, _ in tested],
             )
-            for (c, res), det in zip(tested, dets, strict=True):
+            for (c, test_pose, reason), det in zip(tested, dets, strict=True):
                 lm, model = lms[c], self._model(lms[c])
                 accepted = det.accepted and self._enough_object_beams(det)
-                tried[c] = (lm.id, res.reason, det.mean_d2, det.var_d2, accepted)
+                tried[c] = (lm.id, reason, det.mean_d2, det.var_d2, accepted)
                 if not accepted:
                     continue
                 score = det.loglik + log_norm - 0.5 * m2s[c]
@@ -518,7 +525,7 @@ class VertexSLAM:
                         work.first,
                         work.last,
                         lm,
-                        res.pose.copy(),
+                        test_pose.copy(),
                         (),
                         enough >= self.config.filter.min_object_lines,
                         detection=det,
