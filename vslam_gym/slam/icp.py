@@ -90,6 +90,13 @@ class IcpConfig:
             degrees of freedom (all parallel, or every point on one line).
         max_condition: a step whose ``H`` has a condition number above this is treated
             as singular and stops the alignment (not converged). Not a thesis value.
+        cycle_returns: stop the alignment (not converged, reason ``"cycle"``) the
+            ``cycle_returns``-th time an iteration's association (nearest line of every
+            point and which points are used) differs from the previous iteration's but
+            equals an earlier one: the nearest segments alternate and the alignment would
+            run to ``max_iterations`` without converging. The pose at the stop is
+            returned, one of the states the cycle visits. 0 (the thesis) never stops.
+            Not a thesis value.
     """
 
     max_iterations: int = 50
@@ -100,6 +107,7 @@ class IcpConfig:
     centre_on_centroid: bool = True
     point_to_line: bool = False
     max_condition: float = 1e10
+    cycle_returns: int = 0
 
     def __post_init__(self) -> None:
         if isinstance(self.max_iterations, bool) or int(self.max_iterations) < 1:
@@ -116,6 +124,8 @@ class IcpConfig:
             )
         if not (np.isfinite(self.max_condition) and self.max_condition > 1.0):
             raise ValueError(f"IcpConfig.max_condition must be > 1, got {self.max_condition}")
+        if isinstance(self.cycle_returns, bool) or int(self.cycle_returns) < 0:
+            raise ValueError(f"IcpConfig.cycle_returns must be >= 0, got {self.cycle_returns}")
 
 
 @dataclass(frozen=True)
@@ -136,7 +146,7 @@ class IcpResult:
         rms: root mean square of those points' perpendicular distances to their lines
             [m], at the start of the last iteration; ``inf`` when no point was used.
         reason: why the alignment stopped: ``"converged"``, ``"max_iterations"``,
-            ``"too_few_points"`` or ``"singular"``.
+            ``"too_few_points"``, ``"singular"`` or ``"cycle"`` (``IcpConfig.cycle_returns``).
     """
 
     pose: np.ndarray
@@ -195,6 +205,8 @@ class _Lines:
     Built by :func:`line_geometry` (public name :data:`LineGeometry`).
     """
 
+    index: np.ndarray | None = None
+
     def __init__(self, model: LandmarkModel) -> None:
         idx = model.line_vertices()
         a = model.mean[idx[:, 0]]
@@ -208,6 +220,24 @@ class _Lines:
         inv_length = np.sqrt(self.inv_length2)
         # Free-side (right-hand) unit normal n = [sin psi, -cos psi] (4.3.12).
         self.nx, self.ny = self.aby * inv_length, -self.abx * inv_length
+        self._subsets: dict[bytes, _Lines] = {}
+
+    def subset(self, mask: np.ndarray) -> _Lines:
+        """The lines where ``mask`` ``(L,)`` is True, in order (cached per mask).
+
+        ``index`` maps the subset's lines to this geometry's (None: all lines).
+        """
+        if mask.size == np.count_nonzero(mask):
+            return self
+        key = mask.tobytes()
+        sub = self._subsets.get(key)
+        if sub is None:
+            sub = object.__new__(_Lines)
+            sub.index = np.flatnonzero(mask)
+            for name in ("ax", "ay", "abx", "aby", "inv_length2", "nx", "ny"):
+                setattr(sub, name, getattr(self, name)[sub.index])
+            self._subsets[key] = sub
+        return sub
 
     def visible(
         self, pose: np.ndarray, max_range: float | None, half_fov: float | None
@@ -220,7 +250,7 @@ class _Lines:
         pby = pay + self.aby
         # Front-facing: cross(v_a - p, v_b - p) < 0 (the position is on the free side).
         mask = pax * pby < pay * pbx
-        if not mask.any():  # nothing faces the lidar: the other tests cannot add a line
+        if not np.count_nonzero(mask):  # nothing faces the lidar: the other tests cannot add a line
             return mask
         if max_range is not None:
             s = _unit_clip(-(pax * self.abx + pay * self.aby) * self.inv_length2)
@@ -327,6 +357,24 @@ def _solve_spd3(
     t0 = (y0 - l10 * t1 - l20 * t2) / l00
     t = (t0, t1, t2)
     return t if all(math.isfinite(v) for v in t) else None
+
+
+class _CycleWatch:
+    """Counts the returns of the ICP association to an earlier, non-consecutive one."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit, self.returns = limit, 0
+        self.seen: set[bytes] = set()
+        self.last = b""
+
+    def cycled(self, nearest: np.ndarray, keep: np.ndarray) -> bool:
+        """Record an iteration's association; True once ``limit`` returns were seen."""
+        key = nearest.tobytes() + keep.tobytes()
+        if key != self.last:
+            self.returns += key in self.seen
+            self.seen.add(key)
+            self.last = key
+        return self.returns >= self.limit
 
 
 def align(
@@ -444,7 +492,7 @@ def _align(
     max_range: float | None,
     half_fov: float | None,
 ) -> IcpResult:
-    """:func:`align` on validated inputs."""
+    """:func:`align` on validated inputs (the loop is inline: it is the hot path)."""
     unknown = model.u > config.unknown_threshold
     qx, qy = q[:, 0].copy(), q[:, 1].copy()
     rows = np.arange(q.shape[0])
@@ -453,22 +501,25 @@ def _align(
     x = pose0.copy()
     iterations, n_used, rms = 0, 0, np.inf
     reason = "max_iterations"
+    watch = _CycleWatch(config.cycle_returns) if config.cycle_returns else None
     for _ in range(config.max_iterations):
         vis = lines.visible(x, max_range, half_fov)
-        if q.shape[0] == 0 or not vis.any():
+        if q.shape[0] == 0 or not np.count_nonzero(vis):
             n_used, rms, reason = 0, np.inf, "too_few_points"
             break
-        # Nearest visible segment of every point (R-22): dense (n, L) arrays.
-        aqx = qx[:, None] - lines.ax
-        aqy = qy[:, None] - lines.ay
-        s = _unit_clip((aqx * lines.abx + aqy * lines.aby) * lines.inv_length2)
-        dx = aqx - s * lines.abx
-        dy = aqy - s * lines.aby
-        dist2 = dx * dx + dy * dy
-        j = np.argmin(dist2 if vis.all() else np.where(vis, dist2, np.inf), axis=1)
+        # Nearest visible segment of every point (R-22): dense (n, visible lines) arrays.
+        sub = lines.subset(vis)
+        aqx = qx[:, None] - sub.ax
+        aqy = qy[:, None] - sub.ay
+        s = _unit_clip((aqx * sub.abx + aqy * sub.aby) * sub.inv_length2)
+        dx = aqx - s * sub.abx
+        dy = aqy - s * sub.aby
+        j = np.argmin(dx * dx + dy * dy, axis=1)  # into the visible lines
         # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
-        nx, ny = lines.nx[j], lines.ny[j]
+        nx, ny = sub.nx[j], sub.ny[j]
         e = aqx[rows, j] * nx + aqy[rows, j] * ny
+        if sub.index is not None:
+            j = sub.index[j]
         keep = ~(unknown[j] & (e <= 0.0))
         n_used = int(np.count_nonzero(keep))
         if n_used < q.shape[0]:
@@ -478,6 +529,9 @@ def _align(
         rms = float(np.sqrt(e @ e / n_used)) if n_used else np.inf
         if n_used < config.min_points:
             reason = "too_few_points"
+            break
+        if watch is not None and watch.cycled(j, keep):
+            reason = "cycle"
             break
         cx, cy = float(ux.sum()) / n_used, float(uy.sum()) / n_used
         ox, oy = (cx, cy) if config.centre_on_centroid else (0.0, 0.0)
