@@ -60,6 +60,7 @@ __all__ = [
 ]
 
 TWO_PI = 2.0 * np.pi
+_sum = np.add.reduce  # ndarray.sum without the Python wrapper (same summation)
 
 
 @dataclass(frozen=True)
@@ -243,7 +244,12 @@ class _Lines:
         self, pose: np.ndarray, max_range: float | None, half_fov: float | None
     ) -> np.ndarray:
         """Visibility mask ``(L,)`` bool from ``pose`` (see :func:`visible_lines`)."""
-        px, py, theta = pose.tolist()
+        return self.visible_from(*pose.tolist(), max_range, half_fov)
+
+    def visible_from(
+        self, px: float, py: float, theta: float, max_range: float | None, half_fov: float | None
+    ) -> np.ndarray:
+        """:meth:`visible` from a pose given as floats ``px, py`` [m], ``theta`` [rad]."""
         pax = self.ax - px
         pay = self.ay - py
         pbx = pax + self.abx
@@ -495,15 +501,14 @@ def _align(
     """:func:`align` on validated inputs (the loop is inline: it is the hot path)."""
     unknown = model.u > config.unknown_threshold
     qx, qy = q[:, 0].copy(), q[:, 1].copy()
-    rows = np.arange(q.shape[0])
     x0, y0, th0 = (float(v) for v in pose0)
     tfx = tfy = tfth = 0.0  # accumulated transform t_f (4.3.11)
-    x = pose0.copy()
+    x = (x0, y0, th0)  # the pose estimate (4.3.16)
     iterations, n_used, rms = 0, 0, np.inf
     reason = "max_iterations"
     watch = _CycleWatch(config.cycle_returns) if config.cycle_returns else None
     for _ in range(config.max_iterations):
-        vis = lines.visible(x, max_range, half_fov)
+        vis = lines.visible_from(*x, max_range, half_fov)
         if q.shape[0] == 0 or not np.count_nonzero(vis):
             n_used, rms, reason = 0, np.inf, "too_few_points"
             break
@@ -517,7 +522,7 @@ def _align(
         j = np.argmin(dx * dx + dy * dy, axis=1)  # into the visible lines
         # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
         nx, ny = sub.nx[j], sub.ny[j]
-        e = aqx[rows, j] * nx + aqy[rows, j] * ny
+        e = (qx - sub.ax[j]) * nx + (qy - sub.ay[j]) * ny  # = aq[i, j_i] . n
         if sub.index is not None:
             j = sub.index[j]
         keep = ~(unknown[j] & (e <= 0.0))
@@ -526,14 +531,14 @@ def _align(
             e, nx, ny, ux, uy = e[keep], nx[keep], ny[keep], qx[keep], qy[keep]
         else:
             ux, uy = qx, qy
-        rms = float(np.sqrt(e @ e / n_used)) if n_used else np.inf
+        rms = math.sqrt(float(e @ e) / n_used) if n_used else np.inf
         if n_used < config.min_points:
             reason = "too_few_points"
             break
         if watch is not None and watch.cycled(j, keep):
             reason = "cycle"
             break
-        cx, cy = float(ux.sum()) / n_used, float(uy.sum()) / n_used
+        cx, cy = float(_sum(ux)) / n_used, float(_sum(uy)) / n_used
         ox, oy = (cx, cy) if config.centre_on_centroid else (0.0, 0.0)
         ux = ux - ox
         uy = uy - oy
@@ -547,7 +552,7 @@ def _align(
             h = (xx, xy, float(nx @ a3), yy, float(ny @ a3), float(a3 @ a3))
             t = _solve_spd3(h, rhs, config.max_condition)
         if t is None:  # H = sum J_i^T J_i (4.3.10); also the point-to-line fallback
-            sx, sy = float(ux.sum()), float(uy.sum())
+            sx, sy = float(_sum(ux)), float(_sum(uy))
             h = (n_used, 0.0, -sy, n_used, sx, float(ux @ ux + uy @ uy))
             t = _solve_spd3(h, rhs, config.max_condition)
         if t is None:
@@ -563,9 +568,7 @@ def _align(
         tfx, tfy = cos * tfx - sin * tfy + tx, sin * tfx + cos * tfy + ty  # (4.3.11)
         tfth += tth
         cf, sf = math.cos(tfth), math.sin(tfth)
-        x = np.array(
-            [cf * x0 - sf * y0 + tfx, sf * x0 + cf * y0 + tfy, th0 + tfth]  # (4.3.16), R-23
-        )
+        x = (cf * x0 - sf * y0 + tfx, sf * x0 + cf * y0 + tfy, th0 + tfth)  # (4.3.16), R-23
         # Convergence: how far the step moved the used points' centroid, and turned them.
         moved = math.hypot(cos * cx - sin * cy + tx - cx, sin * cx + cos * cy + ty - cy)
         if moved < config.tol_translation and abs(tth) < config.tol_rotation:
@@ -574,9 +577,8 @@ def _align(
     # Report the transform angle in [-pi, pi); the pose heading is th0 + t_f,theta,
     # continuous with the prior (pose - prior is the correction).
     tfth = float(wrap_angle(tfth))
-    x[2] = th0 + tfth
     return IcpResult(
-        pose=x,
+        pose=np.array([x[0], x[1], th0 + tfth]),
         transform=np.array([tfx, tfy, tfth]),
         iterations=iterations,
         converged=reason == "converged",
