@@ -92,12 +92,14 @@ class IcpConfig:
         max_condition: a step whose ``H`` has a condition number above this is treated
             as singular and stops the alignment (not converged). Not a thesis value.
         cycle_returns: stop the alignment (not converged, reason ``"cycle"``) the
-            ``cycle_returns``-th time an iteration's association (nearest line of every
-            point and which points are used) differs from the previous iteration's but
-            equals an earlier one: the nearest segments alternate and the alignment would
-            run to ``max_iterations`` without converging. The pose at the stop is
-            returned, one of the states the cycle visits. 0 (the thesis) never stops.
-            Not a thesis value.
+            ``cycle_returns``-th time it returns to an earlier state: an iteration's
+            association (nearest line of every point and which points are used) differs
+            from the previous iteration's but equals an earlier one, at a pose within
+            ``tol_translation`` and ``tol_rotation`` of the pose it had then. The nearest
+            segments then alternate for good, and the alignment would run to
+            ``max_iterations`` without converging: the state of the cycle it would have
+            reached there is returned (the same pose within the tolerances), without
+            the iterations. 0 (the thesis) never stops. Not a thesis value.
     """
 
     max_iterations: int = 50
@@ -365,22 +367,49 @@ def _solve_spd3(
     return t if all(math.isfinite(v) for v in t) else None
 
 
+_State = tuple[tuple[float, float, float], float, float, float, int, float]
+"""An ICP state: pose estimate, transform ``t_f`` and the used points and rms there."""
+
+
 class _CycleWatch:
-    """Counts the returns of the ICP association to an earlier, non-consecutive one."""
+    """Finds an ICP alignment's return to an earlier state (``IcpConfig.cycle_returns``).
 
-    def __init__(self, limit: int) -> None:
-        self.limit, self.returns = limit, 0
-        self.seen: set[bytes] = set()
+    A return: an iteration's association (nearest line of every point, used points)
+    differs from the previous iteration's but equals an earlier one, and the pose
+    estimate is within the convergence tolerances (``tol_translation`` [m] in position,
+    ``tol_rotation`` [rad] in heading) of the pose that association was last seen at.
+    From there on the states repeat with that period.
+    """
+
+    def __init__(self, config: IcpConfig) -> None:
+        self.limit, self.returns = config.cycle_returns, 0
+        self.tol_xy, self.tol_theta = config.tol_translation, config.tol_rotation
+        self.seen: dict[bytes, int] = {}  # association -> last iteration it was seen at
+        self.states: list[_State] = []  # the state at the start of every iteration
         self.last = b""
+        self.start = self.period = 0
 
-    def cycled(self, nearest: np.ndarray, keep: np.ndarray) -> bool:
-        """Record an iteration's association; True once ``limit`` returns were seen."""
+    def cycled(self, nearest: np.ndarray, keep: np.ndarray, state: _State) -> bool:
+        """Record an iteration's association and state; True once ``limit`` returns."""
         key = nearest.tobytes() + keep.tobytes()
+        i = len(self.states)
+        self.states.append(state)
         if key != self.last:
-            self.returns += key in self.seen
-            self.seen.add(key)
+            m = self.seen.get(key)
+            if m is not None:
+                (x, y, th), (xm, ym, thm) = state[0], self.states[m][0]
+                if math.hypot(x - xm, y - ym) < self.tol_xy and abs(th - thm) < self.tol_theta:
+                    self.returns += 1
+                    self.start, self.period = m, i - m
             self.last = key
+        self.seen[key] = i
         return self.returns >= self.limit
+
+    def state_at(self, iteration: int) -> _State:
+        """The state the cycle is in at the start of ``iteration`` (0: the prior)."""
+        if iteration < len(self.states):
+            return self.states[iteration]
+        return self.states[self.start + (iteration - self.start) % self.period]
 
 
 def align(
@@ -506,7 +535,7 @@ def _align(
     x = (x0, y0, th0)  # the pose estimate (4.3.16)
     iterations, n_used, rms = 0, 0, np.inf
     reason = "max_iterations"
-    watch = _CycleWatch(config.cycle_returns) if config.cycle_returns else None
+    watch = _CycleWatch(config) if config.cycle_returns else None
     for _ in range(config.max_iterations):
         vis = lines.visible_from(*x, max_range, half_fov)
         if q.shape[0] == 0 or not np.count_nonzero(vis):
@@ -535,8 +564,12 @@ def _align(
         if n_used < config.min_points:
             reason = "too_few_points"
             break
-        if watch is not None and watch.cycled(j, keep):
+        if watch is not None and watch.cycled(j, keep, (x, tfx, tfy, tfth, n_used, rms)):
+            # Where the endless alignment would stop: its pose after the last iteration,
+            # and the used points and rms at the start of that iteration.
             reason = "cycle"
+            x, tfx, tfy, tfth = watch.state_at(config.max_iterations)[:4]
+            n_used, rms = watch.state_at(config.max_iterations - 1)[4:]
             break
         cx, cy = float(_sum(ux)) / n_used, float(_sum(uy)) / n_used
         ox, oy = (cx, cy) if config.centre_on_centroid else (0.0, 0.0)
