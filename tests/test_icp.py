@@ -458,3 +458,57 @@ def test_align_many_equals_align_per_model():
     assert align_many(points[0], [], TRUE) == []
     with pytest.raises(ValueError, match="point sets"):
         align_many(points[:2], models, TRUE)
+
+
+# ----------------------------------------------------------------- cycles
+
+
+# A partial view of a wall with a kink (from house, seed 0): the nearest segments of the
+# points alternate, and the alignment cycles between two poses 0.29 m apart.
+CYCLE_POINTS = np.array(
+    [[-4.257, 9.746], [-5.148, 9.807], [-6.115, 9.897], [-6.529, 10.023], [-6.569, 10.158],
+     [-6.582, 10.294]]
+)  # fmt: skip
+CYCLE_MODEL = LandmarkModel(
+    np.array(
+        [[-1.845, 9.758], [-5.777, 9.789], [-6.54, 10.047], [-6.622, 10.27], [-11.357, 10.703]]
+    ),
+    1e-4 * np.eye(10),
+    np.array([1.0, 0.3, 0.06, 1.0]),
+    False,
+)
+CYCLE_PRIOR = np.array([1.196, 10.055, 3.006])
+
+
+def cycle_run(**cfg):
+    cfg = IcpConfig(point_to_line=True, **cfg)
+    return align(CYCLE_POINTS, CYCLE_MODEL, CYCLE_PRIOR, cfg, 30.0, np.pi / 2)
+
+
+def test_cycle_returns_stops_an_alternating_alignment_where_it_would_have_stopped():
+    for max_iterations in (50, 49):  # the two states of the cycle, 0.29 m apart
+        endless = cycle_run(max_iterations=max_iterations)
+        assert (endless.reason, endless.iterations) == ("max_iterations", max_iterations)
+        for returns in (1, 2, 3):
+            res = cycle_run(max_iterations=max_iterations, cycle_returns=returns)
+            # the cycle is found after a few iterations (it returns within 1e-4 m) ...
+            assert (res.reason, res.iterations, res.converged) == ("cycle", 3 + returns, False)
+            assert res.n_used == endless.n_used == 5
+            # ... and the state the endless alignment ends in is returned
+            np.testing.assert_allclose(res.pose, endless.pose, atol=1e-5)
+            assert res.rms == pytest.approx(endless.rms, rel=1e-5)
+    odd, even = cycle_run(max_iterations=49), cycle_run()
+    assert np.hypot(*(odd.pose[:2] - even.pose[:2])) > 0.25
+
+
+def test_cycle_returns_leaves_converging_alignments_alone():
+    model = model_of(SHAPES["L"])
+    points = set_points(scan_of(SHAPES["L"], TRUE), TRUE)
+    for offset in OFFSETS:
+        prior = TRUE + offset
+        base = run(points, model, prior, point_to_line=True)
+        watched = run(points, model, prior, point_to_line=True, cycle_returns=1)
+        assert base.reason == watched.reason == "converged"
+        np.testing.assert_array_equal(watched.pose, base.pose)
+    with pytest.raises(ValueError, match="cycle_returns"):
+        IcpConfig(cycle_returns=-1)

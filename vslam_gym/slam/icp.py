@@ -60,6 +60,7 @@ __all__ = [
 ]
 
 TWO_PI = 2.0 * np.pi
+_sum = np.add.reduce  # ndarray.sum without the Python wrapper (same summation)
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,15 @@ class IcpConfig:
             degrees of freedom (all parallel, or every point on one line).
         max_condition: a step whose ``H`` has a condition number above this is treated
             as singular and stops the alignment (not converged). Not a thesis value.
+        cycle_returns: stop the alignment (not converged, reason ``"cycle"``) the
+            ``cycle_returns``-th time it returns to an earlier state: an iteration's
+            association (nearest line of every point and which points are used) differs
+            from the previous iteration's but equals an earlier one, at a pose within
+            ``tol_translation`` and ``tol_rotation`` of the pose it had then. The nearest
+            segments then alternate for good, and the alignment would run to
+            ``max_iterations`` without converging: the state of the cycle it would have
+            reached there is returned (the same pose within the tolerances), without
+            the iterations. 0 (the thesis) never stops. Not a thesis value.
     """
 
     max_iterations: int = 50
@@ -100,6 +110,7 @@ class IcpConfig:
     centre_on_centroid: bool = True
     point_to_line: bool = False
     max_condition: float = 1e10
+    cycle_returns: int = 0
 
     def __post_init__(self) -> None:
         if isinstance(self.max_iterations, bool) or int(self.max_iterations) < 1:
@@ -116,6 +127,8 @@ class IcpConfig:
             )
         if not (np.isfinite(self.max_condition) and self.max_condition > 1.0):
             raise ValueError(f"IcpConfig.max_condition must be > 1, got {self.max_condition}")
+        if isinstance(self.cycle_returns, bool) or int(self.cycle_returns) < 0:
+            raise ValueError(f"IcpConfig.cycle_returns must be >= 0, got {self.cycle_returns}")
 
 
 @dataclass(frozen=True)
@@ -136,7 +149,7 @@ class IcpResult:
         rms: root mean square of those points' perpendicular distances to their lines
             [m], at the start of the last iteration; ``inf`` when no point was used.
         reason: why the alignment stopped: ``"converged"``, ``"max_iterations"``,
-            ``"too_few_points"`` or ``"singular"``.
+            ``"too_few_points"``, ``"singular"`` or ``"cycle"`` (``IcpConfig.cycle_returns``).
     """
 
     pose: np.ndarray
@@ -195,6 +208,8 @@ class _Lines:
     Built by :func:`line_geometry` (public name :data:`LineGeometry`).
     """
 
+    index: np.ndarray | None = None
+
     def __init__(self, model: LandmarkModel) -> None:
         idx = model.line_vertices()
         a = model.mean[idx[:, 0]]
@@ -208,19 +223,42 @@ class _Lines:
         inv_length = np.sqrt(self.inv_length2)
         # Free-side (right-hand) unit normal n = [sin psi, -cos psi] (4.3.12).
         self.nx, self.ny = self.aby * inv_length, -self.abx * inv_length
+        self._subsets: dict[bytes, _Lines] = {}
+
+    def subset(self, mask: np.ndarray) -> _Lines:
+        """The lines where ``mask`` ``(L,)`` is True, in order (cached per mask).
+
+        ``index`` maps the subset's lines to this geometry's (None: all lines).
+        """
+        if mask.size == np.count_nonzero(mask):
+            return self
+        key = mask.tobytes()
+        sub = self._subsets.get(key)
+        if sub is None:
+            sub = object.__new__(_Lines)
+            sub.index = np.flatnonzero(mask)
+            for name in ("ax", "ay", "abx", "aby", "inv_length2", "nx", "ny"):
+                setattr(sub, name, getattr(self, name)[sub.index])
+            self._subsets[key] = sub
+        return sub
 
     def visible(
         self, pose: np.ndarray, max_range: float | None, half_fov: float | None
     ) -> np.ndarray:
         """Visibility mask ``(L,)`` bool from ``pose`` (see :func:`visible_lines`)."""
-        px, py, theta = pose.tolist()
+        return self.visible_from(*pose.tolist(), max_range, half_fov)
+
+    def visible_from(
+        self, px: float, py: float, theta: float, max_range: float | None, half_fov: float | None
+    ) -> np.ndarray:
+        """:meth:`visible` from a pose given as floats ``px, py`` [m], ``theta`` [rad]."""
         pax = self.ax - px
         pay = self.ay - py
         pbx = pax + self.abx
         pby = pay + self.aby
         # Front-facing: cross(v_a - p, v_b - p) < 0 (the position is on the free side).
         mask = pax * pby < pay * pbx
-        if not mask.any():  # nothing faces the lidar: the other tests cannot add a line
+        if not np.count_nonzero(mask):  # nothing faces the lidar: the other tests cannot add a line
             return mask
         if max_range is not None:
             s = _unit_clip(-(pax * self.abx + pay * self.aby) * self.inv_length2)
@@ -327,6 +365,51 @@ def _solve_spd3(
     t0 = (y0 - l10 * t1 - l20 * t2) / l00
     t = (t0, t1, t2)
     return t if all(math.isfinite(v) for v in t) else None
+
+
+_State = tuple[tuple[float, float, float], float, float, float, int, float]
+"""An ICP state: pose estimate, transform ``t_f`` and the used points and rms there."""
+
+
+class _CycleWatch:
+    """Finds an ICP alignment's return to an earlier state (``IcpConfig.cycle_returns``).
+
+    A return: an iteration's association (nearest line of every point, used points)
+    differs from the previous iteration's but equals an earlier one, and the pose
+    estimate is within the convergence tolerances (``tol_translation`` [m] in position,
+    ``tol_rotation`` [rad] in heading) of the pose that association was last seen at.
+    From there on the states repeat with that period.
+    """
+
+    def __init__(self, config: IcpConfig) -> None:
+        self.limit, self.returns = config.cycle_returns, 0
+        self.tol_xy, self.tol_theta = config.tol_translation, config.tol_rotation
+        self.seen: dict[bytes, int] = {}  # association -> last iteration it was seen at
+        self.states: list[_State] = []  # the state at the start of every iteration
+        self.last = b""
+        self.start = self.period = 0
+
+    def cycled(self, nearest: np.ndarray, keep: np.ndarray, state: _State) -> bool:
+        """Record an iteration's association and state; True once ``limit`` returns."""
+        key = nearest.tobytes() + keep.tobytes()
+        i = len(self.states)
+        self.states.append(state)
+        if key != self.last:
+            m = self.seen.get(key)
+            if m is not None:
+                (x, y, th), (xm, ym, thm) = state[0], self.states[m][0]
+                if math.hypot(x - xm, y - ym) < self.tol_xy and abs(th - thm) < self.tol_theta:
+                    self.returns += 1
+                    self.start, self.period = m, i - m
+            self.last = key
+        self.seen[key] = i
+        return self.returns >= self.limit
+
+    def state_at(self, iteration: int) -> _State:
+        """The state the cycle is in at the start of ``iteration`` (0: the prior)."""
+        if iteration < len(self.states):
+            return self.states[iteration]
+        return self.states[self.start + (iteration - self.start) % self.period]
 
 
 def align(
@@ -444,42 +527,51 @@ def _align(
     max_range: float | None,
     half_fov: float | None,
 ) -> IcpResult:
-    """:func:`align` on validated inputs."""
+    """:func:`align` on validated inputs (the loop is inline: it is the hot path)."""
     unknown = model.u > config.unknown_threshold
     qx, qy = q[:, 0].copy(), q[:, 1].copy()
-    rows = np.arange(q.shape[0])
     x0, y0, th0 = (float(v) for v in pose0)
     tfx = tfy = tfth = 0.0  # accumulated transform t_f (4.3.11)
-    x = pose0.copy()
+    x = (x0, y0, th0)  # the pose estimate (4.3.16)
     iterations, n_used, rms = 0, 0, np.inf
     reason = "max_iterations"
+    watch = _CycleWatch(config) if config.cycle_returns else None
     for _ in range(config.max_iterations):
-        vis = lines.visible(x, max_range, half_fov)
-        if q.shape[0] == 0 or not vis.any():
+        vis = lines.visible_from(*x, max_range, half_fov)
+        if q.shape[0] == 0 or not np.count_nonzero(vis):
             n_used, rms, reason = 0, np.inf, "too_few_points"
             break
-        # Nearest visible segment of every point (R-22): dense (n, L) arrays.
-        aqx = qx[:, None] - lines.ax
-        aqy = qy[:, None] - lines.ay
-        s = _unit_clip((aqx * lines.abx + aqy * lines.aby) * lines.inv_length2)
-        dx = aqx - s * lines.abx
-        dy = aqy - s * lines.aby
-        dist2 = dx * dx + dy * dy
-        j = np.argmin(dist2 if vis.all() else np.where(vis, dist2, np.inf), axis=1)
+        # Nearest visible segment of every point (R-22): dense (n, visible lines) arrays.
+        sub = lines.subset(vis)
+        aqx = qx[:, None] - sub.ax
+        aqy = qy[:, None] - sub.ay
+        s = _unit_clip((aqx * sub.abx + aqy * sub.aby) * sub.inv_length2)
+        dx = aqx - s * sub.abx
+        dy = aqy - s * sub.aby
+        j = np.argmin(dx * dx + dy * dy, axis=1)  # into the visible lines
         # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
-        nx, ny = lines.nx[j], lines.ny[j]
-        e = aqx[rows, j] * nx + aqy[rows, j] * ny
+        nx, ny = sub.nx[j], sub.ny[j]
+        e = (qx - sub.ax[j]) * nx + (qy - sub.ay[j]) * ny  # = aq[i, j_i] . n
+        if sub.index is not None:
+            j = sub.index[j]
         keep = ~(unknown[j] & (e <= 0.0))
         n_used = int(np.count_nonzero(keep))
         if n_used < q.shape[0]:
             e, nx, ny, ux, uy = e[keep], nx[keep], ny[keep], qx[keep], qy[keep]
         else:
             ux, uy = qx, qy
-        rms = float(np.sqrt(e @ e / n_used)) if n_used else np.inf
+        rms = math.sqrt(float(e @ e) / n_used) if n_used else np.inf
         if n_used < config.min_points:
             reason = "too_few_points"
             break
-        cx, cy = float(ux.sum()) / n_used, float(uy.sum()) / n_used
+        if watch is not None and watch.cycled(j, keep, (x, tfx, tfy, tfth, n_used, rms)):
+            # Where the endless alignment would stop: its pose after the last iteration,
+            # and the used points and rms at the start of that iteration.
+            reason = "cycle"
+            x, tfx, tfy, tfth = watch.state_at(config.max_iterations)[:4]
+            n_used, rms = watch.state_at(config.max_iterations - 1)[4:]
+            break
+        cx, cy = float(_sum(ux)) / n_used, float(_sum(uy)) / n_used
         ox, oy = (cx, cy) if config.centre_on_centroid else (0.0, 0.0)
         ux = ux - ox
         uy = uy - oy
@@ -493,7 +585,7 @@ def _align(
             h = (xx, xy, float(nx @ a3), yy, float(ny @ a3), float(a3 @ a3))
             t = _solve_spd3(h, rhs, config.max_condition)
         if t is None:  # H = sum J_i^T J_i (4.3.10); also the point-to-line fallback
-            sx, sy = float(ux.sum()), float(uy.sum())
+            sx, sy = float(_sum(ux)), float(_sum(uy))
             h = (n_used, 0.0, -sy, n_used, sx, float(ux @ ux + uy @ uy))
             t = _solve_spd3(h, rhs, config.max_condition)
         if t is None:
@@ -509,9 +601,7 @@ def _align(
         tfx, tfy = cos * tfx - sin * tfy + tx, sin * tfx + cos * tfy + ty  # (4.3.11)
         tfth += tth
         cf, sf = math.cos(tfth), math.sin(tfth)
-        x = np.array(
-            [cf * x0 - sf * y0 + tfx, sf * x0 + cf * y0 + tfy, th0 + tfth]  # (4.3.16), R-23
-        )
+        x = (cf * x0 - sf * y0 + tfx, sf * x0 + cf * y0 + tfy, th0 + tfth)  # (4.3.16), R-23
         # Convergence: how far the step moved the used points' centroid, and turned them.
         moved = math.hypot(cos * cx - sin * cy + tx - cx, sin * cx + cos * cy + ty - cy)
         if moved < config.tol_translation and abs(tth) < config.tol_rotation:
@@ -520,9 +610,8 @@ def _align(
     # Report the transform angle in [-pi, pi); the pose heading is th0 + t_f,theta,
     # continuous with the prior (pose - prior is the correction).
     tfth = float(wrap_angle(tfth))
-    x[2] = th0 + tfth
     return IcpResult(
-        pose=x,
+        pose=np.array([x[0], x[1], th0 + tfth]),
         transform=np.array([tfx, tfy, tfth]),
         iterations=iterations,
         converged=reason == "converged",
