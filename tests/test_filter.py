@@ -172,12 +172,20 @@ def _kidnapped_update(config):
 
 
 def test_icp_gate_floor_rejects_gross_corrections_and_keeps_plausible_ones():
-    ungated = _kidnapped_update(SlamConfig())
+    ungated = _kidnapped_update(
+        SlamConfig.from_dict({"filter": {"icp_max_pose_mahalanobis": float("inf")}})
+    )
     assert "updated" in {d.outcome for d in ungated.decisions}
 
     def gated(floor):
         cfg = SlamConfig.from_dict(
-            {"filter": {"icp_max_pose_mahalanobis": 3.0, "icp_gate_sigma_floor": floor}}
+            {
+                "filter": {
+                    "icp_max_pose_mahalanobis": 3.0,
+                    "icp_gate_sigma_floor": floor,
+                    "icp_gate_fallback": False,
+                }
+            }
         )
         return _kidnapped_update(cfg)
 
@@ -208,6 +216,8 @@ def test_icp_gate_floor_rejects_gross_corrections_and_keeps_plausible_ones():
 
 
 def test_min_object_beam_fraction_is_validated_and_off_in_the_thesis():
-    assert SlamConfig.thesis().filter.min_object_beam_fraction == 0.0
+    thesis = SlamConfig.thesis().filter
+    assert thesis.min_object_beam_fraction == 0.0
+    assert thesis.icp_max_pose_mahalanobis == float("inf") and not thesis.icp_gate_fallback
     with pytest.raises(ValueError, match="min_object_beam_fraction"):
         SlamConfig.from_dict({"filter": {"min_object_beam_fraction": 1.5}})
