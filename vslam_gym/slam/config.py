@@ -17,6 +17,8 @@ import numpy as np
 from vslam_gym.config_utils import dataclass_from_dict
 
 LINEARIZATIONS = ("ut", "jacobian")
+PREALIGN_MODES = ("none", "odometry", "fuse")
+"""``FilterConfig.prealign``: whole-scan alignment before the landmark association."""
 
 
 @dataclass(frozen=True)
@@ -293,6 +295,15 @@ class FilterConfig:
         observation_information_scale: the observation's information ``K_obs`` (``K3``)
             is multiplied by this in the state-space update (1 in the thesis); below 1
             it discounts the model errors the vertex covariances do not describe.
+        prealign: whole-scan alignment before the landmark association
+            (:mod:`vslam_gym.slam.scan_matching`; not in the thesis, its future work):
+            ``"none"`` (the thesis); ``"odometry"``: the scan is aligned to the last
+            scans in the matcher's own frame with the odometry as prior, and the matched
+            relative pose replaces the odometry in the motion update (scan-matching
+            odometry under the landmark filter); ``"fuse"``: the scan is aligned to the
+            last scans placed at the filter's pose estimates, and the aligned pose is
+            fused as a direct pose measurement (``H = [I, 0]``) after the motion update.
+            Measured in the README ("Replaying a Carmen log").
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -312,12 +323,17 @@ class FilterConfig:
     unknown_chain_max_vertices: int = 4
     unknown_chain_tolerance: float = 0.3
     observation_information_scale: float = 1.0
+    prealign: str = "none"
 
     def __post_init__(self) -> None:
         if self.new_landmark not in ("thesis", "augment", "halved"):
             raise ValueError(
                 f"FilterConfig.new_landmark must be 'thesis' or 'augment', got "
                 f"{self.new_landmark!r}"
+            )
+        if self.prealign not in PREALIGN_MODES:
+            raise ValueError(
+                f"FilterConfig.prealign must be one of {PREALIGN_MODES}, got {self.prealign!r}"
             )
 
     @classmethod

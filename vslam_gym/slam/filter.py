@@ -53,18 +53,27 @@ from vslam_gym.slam.likelihood import exponential_rate
 from vslam_gym.slam.motion import (
     check_increments,
     compose,
+    increment_to_relative,
     increments_between,
     inverse,
     motion_update,
     odometry_noise,
+    relative_motion_update,
 )
 from vslam_gym.slam.scan import Scan
+from vslam_gym.slam.scan_matching import (
+    LocalMap,
+    ScanMatcherConfig,
+    match_scan,
+    scan_points,
+)
 from vslam_gym.slam.segmentation import segment_scan
 from vslam_gym.slam.state_update import (
     POSE_DIM,
     REF_DIM,
     LandmarkConditional,
     augment_landmark,
+    pose_measurement_update,
     state_space_update,
 )
 from vslam_gym.slam.update import update_model, update_unknown_lines, wrap_model
@@ -78,11 +87,14 @@ class SlamConfig:
         model: landmark-model parameters (chapter 3).
         filter: filter parameters (chapter 4).
         icp: ICP parameters (4.3.4-4.3.16).
+        matcher: whole-scan matcher parameters (used when ``filter.prealign`` is not
+            ``"none"``).
     """
 
     model: ModelConfig = field(default_factory=ModelConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
     icp: IcpConfig = field(default_factory=lambda: IcpConfig(point_to_line=True))
+    matcher: ScanMatcherConfig = field(default_factory=ScanMatcherConfig)
 
     @classmethod
     def thesis(cls) -> SlamConfig:
@@ -111,10 +123,11 @@ class SlamConfig:
 
         Unknown keys at any level raise ``UnknownKeyError`` with a suggestion.
         """
-        check_keys(data.keys(), ["preset", "model", "filter", "icp"], "SlamConfig")
+        parts_names = ("model", "filter", "icp", "matcher")
+        check_keys(data.keys(), ["preset", *parts_names], "SlamConfig")
         base = cls.preset(data.get("preset", "default"))
         parts = {}
-        for name in ("model", "filter", "icp"):
+        for name in parts_names:
             overrides = data.get(name, {})
             current = getattr(base, name)
             names = [f for f in current.__dataclass_fields__]
@@ -180,6 +193,8 @@ class Belief:
         decisions: one per measurement set of the last scan.
         state_dim: ``3 + 2L``.
         step_ms: wall time of the last step [ms].
+        prealigned: the whole-scan matcher's result was used in the last step
+            (``FilterConfig.prealign``).
     """
 
     step: int
@@ -190,6 +205,7 @@ class Belief:
     decisions: tuple[SetDecision, ...]
     state_dim: int
     step_ms: float
+    prealigned: bool = False
 
 
 @dataclass
@@ -331,6 +347,9 @@ class VertexSLAM:
         self._step = 0
         self._decisions: tuple[SetDecision, ...] = ()
         self._step_ms = 0.0
+        self._local_map = LocalMap(self.config.matcher)
+        self._matcher_pose = self._mu[:3].copy()  # "odometry": pose in the matcher's frame
+        self._prealigned = False
         return self.belief
 
     @property
@@ -358,6 +377,7 @@ class VertexSLAM:
             decisions=self._decisions,
             state_dim=int(self._mu.size),
             step_ms=self._step_ms,
+            prealigned=self._prealigned,
         )
 
     def step(self, odometry, ranges, bearings) -> Belief:
@@ -379,9 +399,17 @@ class VertexSLAM:
         u = check_increments(odometry)
         scan = Scan.from_arrays(ranges, bearings, self.sensor)
         start = time.perf_counter()
-        self._motion_update(u)
+        mode = self.config.filter.prealign
+        points = scan_points(scan.ranges, scan.bearings, scan.max_range)
+        if mode == "odometry":
+            self._prealigned = self._matched_motion_update(u, points)
+        else:
+            self._motion_update(u)
+            self._prealigned = mode == "fuse" and self._fuse_match(points)
         self._decisions = tuple(self._measurement_update(scan))
         self._refresh_models()
+        if mode == "fuse":
+            self._local_map.add(points, self._mu[:3])
         self._step += 1
         self._step_ms = (time.perf_counter() - start) * 1e3
         return self.belief
@@ -396,12 +424,66 @@ class VertexSLAM:
         lidar_delta = compose(compose(inverse(self._offset), robot_delta), self._offset)
         return increments_between(np.zeros(3), lidar_delta)
 
-    def _motion_update(self, u: np.ndarray) -> None:
+    def _odometry_noise(self, u: np.ndarray) -> np.ndarray:
         cfg = self.config.filter
-        sigma_n = odometry_noise(u, cfg.odometry_alphas, np.asarray(cfg.odometry_sigma_floor))
+        return odometry_noise(u, cfg.odometry_alphas, np.asarray(cfg.odometry_sigma_floor))
+
+    def _motion_update(self, u: np.ndarray) -> None:
         self._mu, self._sigma = motion_update(
-            self._mu, self._sigma, self._lidar_increments(u), sigma_n
+            self._mu, self._sigma, self._lidar_increments(u), self._odometry_noise(u)
         )
+
+    # ------------------------------------------------------------------ prealignment
+
+    def _matched_motion_update(self, u: np.ndarray, points: np.ndarray) -> bool:
+        """``prealign="odometry"``: motion update with the scan-matched relative pose.
+
+        The matcher keeps its own trajectory (``_matcher_pose``) and local map. The scan
+        is aligned with the odometry's prediction as prior (maximum a posteriori, so the
+        result already contains the odometry); the relative pose from the matcher's
+        previous pose to the aligned one drives the filter's motion update. Without a
+        match, the odometry. Returns whether the match was used.
+        """
+        delta, cov = increment_to_relative(self._lidar_increments(u), self._odometry_noise(u))
+        to_map = _rotation3(self._matcher_pose[2])
+        result = None
+        if len(self._local_map):
+            result = match_scan(
+                points,
+                self._local_map,
+                compose(self._matcher_pose, delta),
+                to_map @ cov @ to_map.T,
+                self.config.matcher,
+            )
+        if result is not None:
+            delta = compose(inverse(self._matcher_pose), result.pose)
+            cov = to_map.T @ result.cov @ to_map
+        self._mu, self._sigma = relative_motion_update(self._mu, self._sigma, delta, cov)
+        self._matcher_pose = compose(self._matcher_pose, delta)
+        self._local_map.add(points, self._matcher_pose)
+        return result is not None
+
+    def _fuse_match(self, points: np.ndarray) -> bool:
+        """``prealign="fuse"``: the aligned pose as a direct measurement of the pose."""
+        if not len(self._local_map):
+            return False
+        result = match_scan(
+            points,
+            self._local_map,
+            self._mu[:3],
+            self._sigma[:3, :3],
+            self.config.matcher,
+            use_prior=False,  # the filter's own prior: not counted twice
+        )
+        if result is None:
+            return False
+        try:
+            self._mu, self._sigma = pose_measurement_update(
+                self._mu, self._sigma, result.pose, result.cov
+            )
+        except np.linalg.LinAlgError:
+            return False
+        return True
 
     # ------------------------------------------------------------------ measurement
 
@@ -780,6 +862,12 @@ class VertexSLAM:
         if lm.parts is None:
             lm.parts = model_parts(self._model(lm))
         return lm.parts
+
+
+def _rotation3(theta: float) -> np.ndarray:
+    """Rotation of a pose covariance's position block by ``theta`` [rad]."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 _MIN_LENGTH2 = 1e-12
