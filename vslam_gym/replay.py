@@ -217,7 +217,7 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("log", help="path to the log")
     parser.add_argument("--odometry", choices=ODOMETRY_MODES, default="logged")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic odometry")
-    parser.add_argument("--preset", choices=("default", "thesis"), default="default")
+    parser.add_argument("--preset", choices=("default", "thesis", "logs"), default="default")
     parser.add_argument(
         "--prealign",
         choices=PREALIGN_MODES,

@@ -265,6 +265,16 @@ class FilterConfig:
             ``tests/test_filter.py`` the overconfident pose covariance then rejects
             correct associations (28 landmarks for 4 objects instead of 7); it becomes a
             default once the pose covariance is consistent.
+        icp_gate_includes_reference: the gate's covariance adds the landmark reference's
+            uncertainty relative to the pose (``S_rr - S_xr - S_rx`` on the position
+            block): an ICP pose is offset by the reference's error as much as by the
+            pose's. False (the pose covariance alone) by default.
+        association_pose: the pose at which a set is tested against a candidate landmark
+            and, when associated, converted for the model update: ``"icp"`` (the
+            thesis: the set aligned to the landmark by ICP) or ``"predicted"`` (the
+            predicted pose mean, no per-landmark ICP; sensible only when the prediction
+            is already good, e.g. with ``prealign``: a segment of a few beams often does
+            not constrain the ICP, which then ends tens of degrees off).
         candidate_max_median_distance: a candidate landmark is aligned (ICP) and tested
             only when the median distance [m] of the set's points, at the predicted
             pose, to its nearest model lines is at most this; ``inf`` (the thesis)
@@ -317,6 +327,8 @@ class FilterConfig:
     min_object_lines: int = 2
     min_beams_per_object_line: int = 2
     icp_max_pose_mahalanobis: float = float("inf")
+    icp_gate_includes_reference: bool = False
+    association_pose: str = "icp"
     candidate_max_median_distance: float = 1.5
     new_landmark: str = "thesis"
     shape_sigma: float = 1e-3
@@ -330,6 +342,11 @@ class FilterConfig:
             raise ValueError(
                 f"FilterConfig.new_landmark must be 'thesis' or 'augment', got "
                 f"{self.new_landmark!r}"
+            )
+        if self.association_pose not in ("icp", "predicted"):
+            raise ValueError(
+                "FilterConfig.association_pose must be 'icp' or 'predicted', got "
+                f"{self.association_pose!r}"
             )
         if self.prealign not in PREALIGN_MODES:
             raise ValueError(

@@ -43,6 +43,7 @@ from vslam_gym.slam.gaussian import make_linearization, symmetrize
 from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.icp import (
     IcpConfig,
+    IcpResult,
     LineGeometry,
     align_many,
     candidate_landmarks,
@@ -78,6 +79,9 @@ from vslam_gym.slam.state_update import (
 )
 from vslam_gym.slam.update import update_model, update_unknown_lines, wrap_model
 
+LOGS_ICP_GATE = 3.0
+"""``icp_max_pose_mahalanobis`` of the ``"logs"`` preset (3 dof: about the 97 % quantile)."""
+
 
 @dataclass(frozen=True)
 class SlamConfig:
@@ -111,9 +115,26 @@ class SlamConfig:
         )
 
     @classmethod
+    def logs(cls) -> SlamConfig:
+        """The default plus what real lidar logs need (README, "Replaying a Carmen log").
+
+        ``filter.prealign="odometry"`` (scan-matched motion, :mod:`scan_matching`) and
+        the ICP pose gate at 3 (``icp_max_pose_mahalanobis``) with the reference's
+        uncertainty (``icp_gate_includes_reference``): per-landmark ICP poses tens of
+        degrees off the (now good) prediction are not candidates.
+        """
+        return cls(
+            filter=FilterConfig(
+                prealign="odometry",
+                icp_max_pose_mahalanobis=LOGS_ICP_GATE,
+                icp_gate_includes_reference=True,
+            )
+        )
+
+    @classmethod
     def preset(cls, name: str) -> SlamConfig:
-        """``"default"`` or ``"thesis"``."""
-        presets = {"default": cls, "thesis": cls.thesis}
+        """``"default"``, ``"thesis"`` or ``"logs"``."""
+        presets = {"default": cls, "thesis": cls.thesis, "logs": cls.logs}
         check_keys([name], presets, "SlamConfig.preset")
         return presets[name]()
 
@@ -557,7 +578,7 @@ class VertexSLAM:
             d[2] = wrap_angle(d[2])
             white = np.linalg.solve(chol, d)
             m2 = float(white @ white)
-            if np.sqrt(m2) > self.config.filter.icp_max_pose_mahalanobis:
+            if self._gate_distance(lms[c], d, m2) > self.config.filter.icp_max_pose_mahalanobis:
                 tried[c] = (lms[c].id, res.reason, np.nan, np.nan, False)
                 continue
             tested.append((c, res))
@@ -602,6 +623,25 @@ class VertexSLAM:
             best.candidates = done
         return best, done
 
+    def _gate_distance(self, lm: _Landmark, d: np.ndarray, m2: float) -> float:
+        """Mahalanobis distance of an ICP pose offset ``d`` for the ICP gate.
+
+        ``m2``: its squared distance under the pose covariance alone (the default);
+        with ``icp_gate_includes_reference`` the reference's relative uncertainty is
+        added to the position block.
+        """
+        if not self.config.filter.icp_gate_includes_reference:
+            return float(np.sqrt(m2))
+        r = slice(lm.ref, lm.ref + REF_DIM)
+        cov = self._sigma[:3, :3].copy()
+        cross = self._sigma[:2, r]
+        cov[:2, :2] += self._sigma[r, r] - cross - cross.T
+        try:
+            m2 = float(d @ np.linalg.solve(cov, d))
+        except np.linalg.LinAlgError:
+            return float("inf")
+        return float(np.sqrt(m2)) if m2 >= 0 else float("inf")
+
     def _measurement_update(self, scan: Scan):
         cfg = self.config.filter
         sets = segment_scan(
@@ -622,15 +662,18 @@ class VertexSLAM:
                 continue
             works.append((first, last, self._candidates(scan, first, last, refs, radii)))
         pairs = [(w, c) for _, _, w in works if w is not None for c in w.aligned]
-        results = align_many(
-            [w.points for w, _ in pairs],
-            [self._model(w.landmarks[c]) for w, c in pairs],
-            self._mu[:3],
-            self.config.icp,
-            self.sensor.max_range,
-            self.sensor.half_fov,
-            lines=[w.geometry[c] for w, c in pairs],
-        )
+        if self.config.filter.association_pose == "predicted":
+            results = [_predicted_result(self._mu[:3], w.points.shape[0]) for w, _ in pairs]
+        else:
+            results = align_many(
+                [w.points for w, _ in pairs],
+                [self._model(w.landmarks[c]) for w, c in pairs],
+                self._mu[:3],
+                self.config.icp,
+                self.sensor.max_range,
+                self.sensor.half_fov,
+                lines=[w.geometry[c] for w, c in pairs],
+            )
         at = 0
         for first, last, work in works:
             if work is None:
@@ -862,6 +905,11 @@ class VertexSLAM:
         if lm.parts is None:
             lm.parts = model_parts(self._model(lm))
         return lm.parts
+
+
+def _predicted_result(pose: np.ndarray, n_points: int) -> IcpResult:
+    """The predicted pose standing in for a per-landmark ICP result."""
+    return IcpResult(pose.copy(), np.zeros(3), 0, True, n_points, float("nan"), "predicted")
 
 
 def _rotation3(theta: float) -> np.ndarray:

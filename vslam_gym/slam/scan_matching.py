@@ -80,6 +80,9 @@ class ScanMatcherConfig:
             ``max_distance_mid`` to ``max_distance_end`` [m].
         merge_translation: see ``refine_candidates``.
         merge_heading_deg: see ``refine_candidates``.
+        converged_translation: a phase stops early when every pose's step is below this
+            [m] ...
+        converged_rotation: ... and this [rad].
         max_distance_start: see ``coarse_iterations``.
         max_distance_mid: see ``coarse_iterations``.
         max_distance_end: see ``refine_iterations``.
@@ -99,8 +102,10 @@ class ScanMatcherConfig:
             is declined.
         covariance_inflation: the scan's information (``H / sigma^2``, sigma from the
             residuals) is divided by this: neighbouring residuals are correlated and
-            the map has errors. In the iterations the residual standard deviation is
-            taken as ``robust_scale``.
+            the map has errors. The iterations weigh the scan with ``1 / robust_scale^2``
+            (no inflation): measured on the logs, an inflated scan term lets the
+            odometry prior pull the heading (ACES, 300 scans, seeds 0-2: scan-matching
+            odometry ATE 1.2-1.7 m instead of 1.3-4.2 m).
         sigma_floor: the covariance gets at least these standard deviations ``(x [m],
             y [m], theta [rad])`` added on its diagonal.
     """
@@ -109,7 +114,7 @@ class ScanMatcherConfig:
     coarse_stride: int = 3
     normal_half_windows: tuple[int, ...] = (2, 4, 8)
     normal_min_extent: float = 0.2
-    normal_max_radius: float = 0.5
+    normal_max_radius: float = 3.0
     normal_max_flatness: float = 0.02
     heading_sigmas: float = 4.0
     heading_step_deg: float = 5.0
@@ -119,9 +124,11 @@ class ScanMatcherConfig:
     refine_iterations: int = 8
     merge_translation: float = 0.05
     merge_heading_deg: float = 1.0
+    converged_translation: float = 1e-3
+    converged_rotation: float = 1e-4
     max_distance_start: float = 1.0
-    max_distance_mid: float = 0.3
-    max_distance_end: float = 0.2
+    max_distance_mid: float = 0.5
+    max_distance_end: float = 0.3
     robust_scale: float = 0.05
     inlier_distance: float = 0.1
     min_points: int = 20
@@ -162,6 +169,8 @@ class ScanMatcherConfig:
             "covariance_inflation",
             "merge_translation",
             "merge_heading_deg",
+            "converged_translation",
+            "converged_rotation",
         ):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -376,7 +385,7 @@ def _gauss_newton(
     One step per correspondence gate [m] in ``gates``. Returns ``(h, 3)``.
     """
     poses = starts.copy()
-    scan_info = 1.0 / (config.covariance_inflation * config.robust_scale**2)
+    scan_info = 1.0 / config.robust_scale**2  # the prior only breaks ties (corridors)
     damping = np.eye(3) * np.finfo(float).eps ** 0.5
     for gate in gates:
         res = _residuals(poses, points, reference, float(gate))
@@ -389,6 +398,10 @@ def _gauss_newton(
         scale = np.maximum(np.trace(hess[ok], axis1=1, axis2=2), 1.0)[:, None, None]
         step = -np.linalg.solve(hess[ok] + damping * scale, grad[ok][..., None])[..., 0]
         poses[ok] += step
+        if np.all(np.hypot(step[:, 0], step[:, 1]) < config.converged_translation) and np.all(
+            np.abs(step[:, 2]) < config.converged_rotation
+        ):
+            break
     poses[:, 2] = wrap_angle(poses[:, 2])
     return poses
 
