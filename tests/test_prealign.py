@@ -15,7 +15,7 @@ STEPS = 40
 
 
 def _config(mode: str) -> SlamConfig:
-    return SlamConfig.from_dict({"filter": {"prealign": mode, "icp_max_pose_mahalanobis": 3.0}})
+    return SlamConfig.from_dict({"preset": "logs", "filter": {"prealign": mode}})
 
 
 @pytest.mark.parametrize("mode", ["odometry", "fuse"])

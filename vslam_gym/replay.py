@@ -76,6 +76,8 @@ def replay(
 ) -> dict[str, Any]:
     """Feed a log to :class:`VertexSLAM` scan by scan; return the metrics and trajectories.
 
+    Every scan is a step, scan 0 included (with zero odometry, at the initial pose).
+
     ``config`` replaces the preset's configuration; ``prealign`` overrides its
     ``FilterConfig.prealign`` (None: keep it).
 
@@ -104,15 +106,17 @@ def replay(
     slam = VertexSLAM(
         sensor_for_log(log, sigma_range, sigma_bearing_deg), config, initial_pose=log.poses[0]
     )
-    slam_poses = [log.poses[0].copy()]
+    slam_poses: list[np.ndarray] = []
     step_ms: list[float] = []
     prealigned = 0
     completed, error = True, ""
-    bar = _progress(n - 1, progress)
+    bar = _progress(n, progress)
     belief = slam.belief
-    for k in range(1, n):
+    for k in range(n):
+        # Scan 0 is taken at the initial pose: a step without motion.
+        u = np.zeros(3) if k == 0 else increments[k - 1]
         try:
-            belief = slam.step(increments[k - 1], log.ranges[k], log.bearings)
+            belief = slam.step(u, log.ranges[k], log.bearings)
         except (ValueError, np.linalg.LinAlgError) as exc:  # report, do not hide
             completed, error = False, f"scan {k}: {type(exc).__name__}: {exc}"
             break
@@ -123,7 +127,7 @@ def replay(
             bar.update(1)
     if bar is not None:
         bar.close()
-    slam_arr = np.array(slam_poses)
+    slam_arr = np.array(slam_poses).reshape(-1, 3)
     true = log.poses[: slam_arr.shape[0]]
     odo = integrate_increments(log.poses[0], increments)[: slam_arr.shape[0]]
     finite = bool(np.all(np.isfinite(slam_arr)))

@@ -54,6 +54,7 @@ from vslam_gym.slam.likelihood import exponential_rate
 from vslam_gym.slam.motion import (
     check_increments,
     compose,
+    frame_rotation,
     increment_to_relative,
     increments_between,
     inverse,
@@ -466,7 +467,7 @@ class VertexSLAM:
         match, the odometry. Returns whether the match was used.
         """
         delta, cov = increment_to_relative(self._lidar_increments(u), self._odometry_noise(u))
-        to_map = _rotation3(self._matcher_pose[2])
+        to_map = frame_rotation(self._matcher_pose[2])
         result = None
         if len(self._local_map):
             result = match_scan(
@@ -910,12 +911,6 @@ class VertexSLAM:
 def _predicted_result(pose: np.ndarray, n_points: int) -> IcpResult:
     """The predicted pose standing in for a per-landmark ICP result."""
     return IcpResult(pose.copy(), np.zeros(3), 0, True, n_points, float("nan"), "predicted")
-
-
-def _rotation3(theta: float) -> np.ndarray:
-    """Rotation of a pose covariance's position block by ``theta`` [rad]."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 _MIN_LENGTH2 = 1e-12

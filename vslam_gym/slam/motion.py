@@ -96,8 +96,18 @@ def relative_motion_update(
     c, s = np.cos(mu[2]), np.sin(mu[2])
     dx, dy = delta[0], delta[1]
     g = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
-    v = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    v = frame_rotation(mu[2])
     return _propagate(mu, sigma, compose(mu[:3], delta), g, v @ delta_cov @ v.T)
+
+
+def frame_rotation(theta: float) -> np.ndarray:
+    """``(3, 3)``: rotates the position part of a pose difference by ``theta`` [rad].
+
+    Maps a relative pose's covariance from a frame at heading ``theta`` to the world:
+    ``R C R^T``; its transpose maps back.
+    """
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def increment_to_relative(u: np.ndarray, sigma_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
