@@ -97,6 +97,9 @@ def test_declines_with_an_empty_map_and_rejects_bad_input():
         match_scan(pts, local, np.zeros(3), -_cov(0.1, 5.0))
     with pytest.raises(ValueError, match="prior_cov"):
         match_scan(pts, local, np.zeros(3), np.eye(2))
+    # a turn on the spot: the odometry's covariance is singular, which is accepted
+    singular = np.diag([0.0, 0.0, np.deg2rad(5.0) ** 2])
+    assert match_scan(pts, local, np.array([2.0, 2.0, 0.05]), singular) is not None
     with pytest.raises(ValueError, match="pose"):
         match_scan(pts, local, np.zeros(2), _cov(0.1, 5.0))
     with pytest.raises(ValueError, match="keyframes"):

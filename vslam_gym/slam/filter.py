@@ -470,13 +470,16 @@ class VertexSLAM:
         to_map = frame_rotation(self._matcher_pose[2])
         result = None
         if len(self._local_map):
-            result = match_scan(
-                points,
-                self._local_map,
-                compose(self._matcher_pose, delta),
-                to_map @ cov @ to_map.T,
-                self.config.matcher,
-            )
+            try:
+                result = match_scan(
+                    points,
+                    self._local_map,
+                    compose(self._matcher_pose, delta),
+                    to_map @ cov @ to_map.T,
+                    self.config.matcher,
+                )
+            except (ValueError, np.linalg.LinAlgError):  # degenerate numbers: no match
+                result = None
         if result is not None:
             delta = compose(inverse(self._matcher_pose), result.pose)
             cov = to_map.T @ result.cov @ to_map
@@ -489,21 +492,21 @@ class VertexSLAM:
         """``prealign="fuse"``: the aligned pose as a direct measurement of the pose."""
         if not len(self._local_map):
             return False
-        result = match_scan(
-            points,
-            self._local_map,
-            self._mu[:3],
-            self._sigma[:3, :3],
-            self.config.matcher,
-            use_prior=False,  # the filter's own prior: not counted twice
-        )
-        if result is None:
-            return False
         try:
+            result = match_scan(
+                points,
+                self._local_map,
+                self._mu[:3],
+                self._sigma[:3, :3],
+                self.config.matcher,
+                use_prior=False,  # the filter's own prior: not counted twice
+            )
+            if result is None:
+                return False
             self._mu, self._sigma = pose_measurement_update(
                 self._mu, self._sigma, result.pose, result.cov
             )
-        except np.linalg.LinAlgError:
+        except (ValueError, np.linalg.LinAlgError):  # degenerate numbers: not fused
             return False
         return True
 

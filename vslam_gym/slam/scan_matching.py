@@ -48,6 +48,10 @@ __all__ = [
 ]
 
 
+PSD_TOLERANCE = 1e-9
+"""Relative negative eigenvalue of ``prior_cov`` still accepted as round-off."""
+
+
 @dataclass(frozen=True)
 class ScanMatcherConfig:
     """Parameters of the whole-scan matcher (not thesis values; measured on the logs).
@@ -107,7 +111,8 @@ class ScanMatcherConfig:
             odometry prior pull the heading (ACES, 300 scans, seeds 0-2: scan-matching
             odometry ATE 1.2-1.7 m instead of 1.3-4.2 m).
         sigma_floor: the covariance gets at least these standard deviations ``(x [m],
-            y [m], theta [rad])`` added on its diagonal.
+            y [m], theta [rad])`` added on its diagonal; so does the prior (a turn on
+            the spot has a singular odometry covariance).
     """
 
     keyframes: int = 20
@@ -438,7 +443,8 @@ def match_scan(
             (:func:`scan_points`).
         local_map: the reference.
         prior: ``(3,)`` predicted lidar pose in the map frame.
-        prior_cov: ``(3, 3)`` its covariance; the hypotheses span its heading variance.
+        prior_cov: ``(3, 3)`` its covariance (positive semi-definite); the hypotheses
+            span its heading variance.
         config: defaults to ``local_map.config``.
         use_prior: True: maximum a posteriori, the prior is a term of the cost (a
             corridor's free direction comes from it) and of the returned covariance;
@@ -476,12 +482,12 @@ def match_scan_why(
     prior_cov = np.asarray(prior_cov, dtype=float)
     if prior_cov.shape != (3, 3) or not np.all(np.isfinite(prior_cov)):
         raise ValueError(f"prior_cov must be a finite (3, 3) array, got shape {prior_cov.shape}")
-    try:
-        info = np.linalg.inv(0.5 * (prior_cov + prior_cov.T)) if use_prior else np.zeros((3, 3))
-        if use_prior and np.linalg.eigvalsh(info)[0] <= 0:
-            raise np.linalg.LinAlgError
-    except np.linalg.LinAlgError:
-        raise ValueError("prior_cov must be symmetric positive definite") from None
+    prior_cov = 0.5 * (prior_cov + prior_cov.T)
+    if np.linalg.eigvalsh(prior_cov)[0] < -PSD_TOLERANCE * max(np.abs(prior_cov).max(), 1.0):
+        raise ValueError("prior_cov must be symmetric positive semi-definite")
+    # A turn on the spot has a singular odometry covariance: floor it.
+    floor = np.diag(np.asarray(config.sigma_floor, dtype=float) ** 2)
+    info = np.linalg.inv(prior_cov + floor) if use_prior else np.zeros((3, 3))
     reference = local_map.reference()
     if reference is None:
         return None, "empty"
