@@ -17,6 +17,8 @@ RADISH = Path(
 )
 INTEL = RADISH / "intel.log.gz"
 KEYS = {
+    "prealign",
+    "prealigned_fraction",
     "scans",
     "completed",
     "ate_rmse_m",
@@ -77,3 +79,15 @@ def test_replay_of_a_written_log_and_bad_mode(tmp_path):
     assert result["metrics"]["completed"] and result["metrics"]["scans"] == 6
     with pytest.raises(ValueError, match="odometry must be one of"):
         replay(path, "wheel")
+
+
+@pytest.mark.skipif(not INTEL.exists(), reason="the Intel log is not in the shared folder")
+def test_logs_preset_with_synthetic_odometry_recovers_the_heading_errors():
+    """Synthetic odometry is 6-10 deg off per step; the whole-scan matcher recovers it."""
+    result = replay(INTEL, "synthetic", seed=0, preset="logs", max_scans=40)
+    metrics = result["metrics"]
+    assert metrics["completed"] and metrics["prealign"] == "odometry"
+    assert metrics["prealigned_fraction"] > 0.9
+    assert metrics["ate_rmse_m"] < 0.3 and metrics["ate_rmse_m"] < 0.2 * metrics["odom_ate_rmse_m"]
+    plain = replay(INTEL, "synthetic", seed=0, preset="logs", max_scans=5, prealign="none")
+    assert plain["metrics"]["prealign"] == "none" and plain["metrics"]["prealigned_fraction"] == 0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ from vslam_gym.logs import (
     read_carmen,
     synthetic_increments,
 )
-from vslam_gym.slam.config import SensorConfig
+from vslam_gym.slam.config import PREALIGN_MODES, SensorConfig
 from vslam_gym.slam.filter import SlamConfig, VertexSLAM
 
 ODOMETRY_MODES = ("logged", "synthetic")
@@ -70,13 +71,21 @@ def replay(
     sigma_range: float = DEFAULT_SIGMA_RANGE,
     sigma_bearing_deg: float = DEFAULT_SIGMA_BEARING_DEG,
     progress: bool = False,
+    prealign: str | None = None,
+    config: SlamConfig | None = None,
 ) -> dict[str, Any]:
     """Feed a log to :class:`VertexSLAM` scan by scan; return the metrics and trajectories.
+
+    Every scan is a step, scan 0 included (with zero odometry, at the initial pose).
+
+    ``config`` replaces the preset's configuration; ``prealign`` overrides its
+    ``FilterConfig.prealign`` (None: keep it).
 
     Returns:
         A dict with ``metrics`` (``scans``, ``completed``, ``ate_rmse_m``,
         ``odom_ate_rmse_m``, ``final_error_m``, ``heading_rmse_rad``, ``landmarks``,
-        ``step_ms_median``, ``step_ms_p95``, ``error`` when not completed) and the
+        ``step_ms_median``, ``step_ms_p95``, ``prealign``, ``prealigned_fraction`` (steps
+        that used the whole-scan match), ``error`` when not completed) and the
         ``true``, ``odometry`` and ``slam`` pose arrays ``(T, 3)``, ``times`` and the
         final ``belief``.
 
@@ -91,28 +100,34 @@ def replay(
         increments = logged_increments(log)[: n - 1]
     else:
         increments = synthetic_increments(log, seed)[: n - 1]
-    config = SlamConfig.preset(preset)
+    config = config or SlamConfig.preset(preset)
+    if prealign is not None:
+        config = replace(config, filter=replace(config.filter, prealign=prealign))
     slam = VertexSLAM(
         sensor_for_log(log, sigma_range, sigma_bearing_deg), config, initial_pose=log.poses[0]
     )
-    slam_poses = [log.poses[0].copy()]
+    slam_poses: list[np.ndarray] = []
     step_ms: list[float] = []
+    prealigned = 0
     completed, error = True, ""
-    bar = _progress(n - 1, progress)
+    bar = _progress(n, progress)
     belief = slam.belief
-    for k in range(1, n):
+    for k in range(n):
+        # Scan 0 is taken at the initial pose: a step without motion.
+        u = np.zeros(3) if k == 0 else increments[k - 1]
         try:
-            belief = slam.step(increments[k - 1], log.ranges[k], log.bearings)
+            belief = slam.step(u, log.ranges[k], log.bearings)
         except (ValueError, np.linalg.LinAlgError) as exc:  # report, do not hide
             completed, error = False, f"scan {k}: {type(exc).__name__}: {exc}"
             break
         slam_poses.append(belief.robot_pose)
         step_ms.append(belief.step_ms)
+        prealigned += int(belief.prealigned)
         if bar is not None:
             bar.update(1)
     if bar is not None:
         bar.close()
-    slam_arr = np.array(slam_poses)
+    slam_arr = np.array(slam_poses).reshape(-1, 3)
     true = log.poses[: slam_arr.shape[0]]
     odo = integrate_increments(log.poses[0], increments)[: slam_arr.shape[0]]
     finite = bool(np.all(np.isfinite(slam_arr)))
@@ -131,6 +146,8 @@ def replay(
         "landmarks": len(belief.landmarks),
         "step_ms_median": median_ms,
         "step_ms_p95": p95_ms,
+        "prealign": config.filter.prealign,
+        "prealigned_fraction": prealigned / max(len(step_ms), 1),
     }
     if error:
         metrics["error"] = error
@@ -204,7 +221,14 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("log", help="path to the log")
     parser.add_argument("--odometry", choices=ODOMETRY_MODES, default="logged")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic odometry")
-    parser.add_argument("--preset", choices=("default", "thesis"), default="default")
+    parser.add_argument("--preset", choices=("default", "thesis", "logs"), default="default")
+    parser.add_argument(
+        "--prealign",
+        choices=PREALIGN_MODES,
+        default=None,
+        help="whole-scan alignment before the landmark association (FilterConfig.prealign; "
+        "default: the preset's)",
+    )
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--max-scans", type=int, default=None, help="replay only the first N")
     parser.add_argument(
@@ -228,6 +252,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         args.max_scans,
         args.max_range,
         progress=not args.no_progress,
+        prealign=args.prealign,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

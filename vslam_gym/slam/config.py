@@ -17,6 +17,8 @@ import numpy as np
 from vslam_gym.config_utils import dataclass_from_dict
 
 LINEARIZATIONS = ("ut", "jacobian")
+PREALIGN_MODES = ("none", "odometry", "fuse")
+"""``FilterConfig.prealign``: whole-scan alignment before the landmark association."""
 
 
 @dataclass(frozen=True)
@@ -283,6 +285,17 @@ class FilterConfig:
             0.14 -> 0.11, ``curved`` 0.10 -> 0.08 (landmarks 103 -> 76, precision 0.97
             -> 0.99), but ``house`` (seeds 0-9) 0.22 -> 0.41 m, final error 0.23 ->
             0.70 m (landmarks 160 -> 117).
+        icp_gate_includes_reference: the gate's covariance adds the landmark reference's
+            uncertainty relative to the pose (``S_rr - S_xr - S_rx`` on the position
+            block): an ICP pose is offset by the reference's error as much as by the
+            pose's. False (the pose covariance alone) by default; True in the ``logs``
+            preset.
+        association_pose: the pose at which a set is tested against a candidate landmark
+            and, when associated, converted for the model update: ``"icp"`` (the
+            thesis: the set aligned to the landmark by ICP) or ``"predicted"`` (the
+            predicted pose mean, no per-landmark ICP; sensible only when the prediction
+            is already good, e.g. with ``prealign``: a segment of a few beams often does
+            not constrain the ICP, which then ends tens of degrees off).
         candidate_max_median_distance: a candidate landmark is aligned (ICP) and tested
             only when the median distance [m] of the set's points, at the predicted
             pose, to its nearest model lines is at most this; ``inf`` (the thesis)
@@ -319,6 +332,15 @@ class FilterConfig:
             fits a model only through its unknown lines (free-space boundaries, whose
             likelihood is broad) says little about the landmark: in ``house`` most wrong
             associations had no beam on an object line.
+        prealign: whole-scan alignment before the landmark association
+            (:mod:`vslam_gym.slam.scan_matching`; not in the thesis, its future work):
+            ``"none"`` (the thesis); ``"odometry"``: the scan is aligned to the last
+            scans in the matcher's own frame with the odometry as prior, and the matched
+            relative pose replaces the odometry in the motion update (scan-matching
+            odometry under the landmark filter); ``"fuse"``: the scan is aligned to the
+            last scans placed at the filter's pose estimates, and the aligned pose is
+            fused as a direct pose measurement (``H = [I, 0]``) after the motion update.
+            Measured in the README ("Replaying a Carmen log").
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -334,6 +356,8 @@ class FilterConfig:
     icp_max_pose_mahalanobis: float = 3.0
     icp_gate_sigma_floor: tuple[float, float, float] = (0.2, 0.2, 0.1)
     icp_gate_fallback: bool = False
+    icp_gate_includes_reference: bool = False
+    association_pose: str = "icp"
     candidate_max_median_distance: float = 1.5
     new_landmark: str = "thesis"
     shape_sigma: float = 1e-3
@@ -341,6 +365,7 @@ class FilterConfig:
     unknown_chain_tolerance: float = 0.3
     observation_information_scale: float = 1.0
     min_object_beam_fraction: float = 0.0
+    prealign: str = "none"
 
     def __post_init__(self) -> None:
         floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
@@ -360,6 +385,15 @@ class FilterConfig:
             raise ValueError(
                 f"FilterConfig.new_landmark must be 'thesis' or 'augment', got "
                 f"{self.new_landmark!r}"
+            )
+        if self.association_pose not in ("icp", "predicted"):
+            raise ValueError(
+                "FilterConfig.association_pose must be 'icp' or 'predicted', got "
+                f"{self.association_pose!r}"
+            )
+        if self.prealign not in PREALIGN_MODES:
+            raise ValueError(
+                f"FilterConfig.prealign must be one of {PREALIGN_MODES}, got {self.prealign!r}"
             )
 
     @classmethod

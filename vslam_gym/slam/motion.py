@@ -79,12 +79,57 @@ def motion_update(
         New ``(mu, Sigma)`` (copies).
     """
     g, h = motion_jacobians(mu[:3], u)
+    return _propagate(mu, sigma, predict_pose(mu[:3], u), g, h @ sigma_n @ h.T)
+
+
+def relative_motion_update(
+    mu: np.ndarray, sigma: np.ndarray, delta: np.ndarray, delta_cov: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """EKF prediction with a relative pose ``delta = [dx, dy, dtheta]`` (previous frame).
+
+    ``x_t = x (+) delta`` with ``delta ~ N(delta, delta_cov)`` (e.g. from scan matching);
+    the same block update as :func:`motion_update`.
+
+    Returns:
+        New ``(mu, Sigma)`` (copies).
+    """
+    c, s = np.cos(mu[2]), np.sin(mu[2])
+    dx, dy = delta[0], delta[1]
+    g = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+    v = frame_rotation(mu[2])
+    return _propagate(mu, sigma, compose(mu[:3], delta), g, v @ delta_cov @ v.T)
+
+
+def frame_rotation(theta: float) -> np.ndarray:
+    """``(3, 3)``: rotates the position part of a pose difference by ``theta`` [rad].
+
+    Maps a relative pose's covariance from a frame at heading ``theta`` to the world:
+    ``R C R^T``; its transpose maps back.
+    """
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def increment_to_relative(u: np.ndarray, sigma_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Increments ``[rot1, trans, rot2]`` (covariance ``sigma_n``) as a relative pose.
+
+    Returns:
+        ``[dx, dy, dtheta]`` in the previous pose's frame and its first-order covariance.
+    """
+    _, h = motion_jacobians(np.zeros(3), u)
+    return predict_pose(np.zeros(3), u), h @ sigma_n @ h.T
+
+
+def _propagate(
+    mu: np.ndarray, sigma: np.ndarray, pose: np.ndarray, g: np.ndarray, noise: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """New pose mean; ``Sigma'_xx = G Sigma_xx G^T + noise``, ``Sigma'_xm = G Sigma_xm``."""
     mu_new = mu.copy()
-    mu_new[:3] = predict_pose(mu[:3], u)
+    mu_new[:3] = pose
     out = sigma.copy()
     out[:3, 3:] = g @ sigma[:3, 3:]
     out[3:, :3] = out[:3, 3:].T
-    out[:3, :3] = g @ sigma[:3, :3] @ g.T + h @ sigma_n @ h.T
+    out[:3, :3] = g @ sigma[:3, :3] @ g.T + noise
     out[:3, :3] = 0.5 * (out[:3, :3] + out[:3, :3].T)
     return mu_new, out
 

@@ -29,9 +29,34 @@ import numpy as np
 import scipy.linalg
 
 from vslam_gym.slam.gaussian import Canonical, cholesky, symmetrize
+from vslam_gym.slam.geometry import wrap_angle
 
 POSE_DIM = 3
 REF_DIM = 2
+
+
+def pose_measurement_update(
+    mu: np.ndarray, sigma: np.ndarray, z: np.ndarray, cov_z: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Kalman update of the whole state with a direct measurement ``z ~ N(x, cov_z)``.
+
+    ``H = [I_3, 0]``: the landmark references move with the pose through their
+    correlations. Heading innovation wrapped; ``O((3 + 2L)^2)``.
+
+    Returns:
+        New ``(mu, Sigma)`` (copies).
+
+    Raises:
+        numpy.linalg.LinAlgError: the innovation covariance is not positive definite.
+    """
+    innovation = np.asarray(z, dtype=float) - mu[:POSE_DIM]
+    innovation[2] = wrap_angle(innovation[2])
+    s_cho = scipy.linalg.cho_factor(sigma[:POSE_DIM, :POSE_DIM] + cov_z)
+    gain_t = scipy.linalg.cho_solve(s_cho, sigma[:POSE_DIM, :])  # (3, n) = S^-1 Sigma_x.
+    mu_new = mu + gain_t.T @ innovation
+    mu_new[2] = wrap_angle(mu_new[2])
+    sigma_new = symmetrize(sigma - sigma[:, :POSE_DIM] @ gain_t)
+    return mu_new, sigma_new
 
 
 @dataclass

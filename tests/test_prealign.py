@@ -1,0 +1,74 @@
+"""``FilterConfig.prealign``: the whole-scan match inside :class:`VertexSLAM`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_filter import PHI, run
+
+from vslam_gym.slam.config import FilterConfig
+from vslam_gym.slam.filter import SlamConfig
+from vslam_gym.slam.motion import increment_to_relative, motion_update, relative_motion_update
+from vslam_gym.slam.state_update import pose_measurement_update
+
+STEPS = 40
+
+
+def _config(mode: str) -> SlamConfig:
+    return SlamConfig.from_dict({"preset": "logs", "filter": {"prealign": mode}})
+
+
+@pytest.mark.parametrize("mode", ["odometry", "fuse"])
+def test_prealigned_filter_tracks_and_keeps_the_covariance_spd(mode):
+    slam, beliefs, odo_err, true = run(_config(mode), steps=STEPS)
+    assert np.mean([b.prealigned for b in beliefs]) > 0.5
+    err = np.hypot(*(beliefs[-1].pose[:2] - true[STEPS - 1, :2]))
+    assert err < 0.15, (err, odo_err[-1])
+    np.testing.assert_array_equal(slam._sigma, slam._sigma.T)
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+
+
+@pytest.mark.parametrize("mode", ["odometry", "fuse"])
+def test_rejected_input_leaves_belief_and_matcher_unchanged(mode):
+    slam, _, _, _ = run(_config(mode), steps=10)
+    before, sigma = slam.belief, slam._sigma.copy()
+    keyframes, matcher_pose = len(slam._local_map), slam._matcher_pose.copy()
+    with pytest.raises(ValueError, match="NaN"):
+        slam.step([0.0, 0.1, 0.0], np.r_[np.ones(180), np.nan], PHI)
+    np.testing.assert_array_equal(slam.belief.pose, before.pose)
+    np.testing.assert_array_equal(slam._sigma, sigma)
+    assert len(slam._local_map) == keyframes
+    np.testing.assert_array_equal(slam._matcher_pose, matcher_pose)
+
+
+def test_unknown_prealign_mode_raises():
+    with pytest.raises(ValueError, match="prealign"):
+        FilterConfig(prealign="joint")
+
+
+def test_relative_motion_update_equals_the_odometry_motion_update():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(7, 7))
+    sigma = a @ a.T + np.eye(7)
+    mu = rng.normal(size=7)
+    u, sigma_n = np.array([0.3, 0.8, -0.2]), np.diag([1e-3, 4e-3, 2e-3])
+    expected = motion_update(mu, sigma, u, sigma_n)
+    got = relative_motion_update(mu, sigma, *increment_to_relative(u, sigma_n))
+    np.testing.assert_allclose(got[0], expected[0], atol=1e-12)
+    np.testing.assert_allclose(got[1], expected[1], atol=1e-12)
+
+
+def test_pose_measurement_update_is_the_dense_kalman_update():
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(7, 7))
+    sigma = a @ a.T + np.eye(7)
+    mu = rng.normal(size=7)
+    z, r = mu[:3] + np.array([0.1, -0.2, 0.05]), np.diag([0.01, 0.02, 0.001])
+    h = np.hstack([np.eye(3), np.zeros((3, 4))])
+    gain = sigma @ h.T @ np.linalg.inv(h @ sigma @ h.T + r)
+    mu_new, sigma_new = pose_measurement_update(mu, sigma, z, r)
+    expected = mu + gain @ (z - mu[:3])
+    np.testing.assert_allclose(mu_new[:2], expected[:2], atol=1e-12)
+    np.testing.assert_allclose(mu_new[3:], expected[3:], atol=1e-12)
+    np.testing.assert_allclose(sigma_new, (np.eye(7) - gain @ h) @ sigma, atol=1e-12)
+    np.testing.assert_array_equal(sigma_new, sigma_new.T)

@@ -1,0 +1,117 @@
+"""Whole-scan matcher (:mod:`vslam_gym.slam.scan_matching`) on ray-cast scans."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _raycast import bearings_deg, cast, polygon_edges
+
+from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.scan_matching import (
+    LocalMap,
+    ScanMatcherConfig,
+    match_scan,
+    scan_normals,
+    scan_points,
+)
+
+L_ROOM = polygon_edges(
+    [np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 4.0], [4.0, 4.0], [4.0, 10.0], [0.0, 10.0]])]
+)
+CORRIDOR = np.array(  # two long parallel walls, no end in range
+    [[[-100.0, 1.5], [100.0, 1.5]], [[-100.0, -1.5], [100.0, -1.5]]]
+)
+BEARINGS = bearings_deg(180.0, 1.0)
+MAX_RANGE = 30.0
+
+
+def _points(pose, edges, seed):
+    rng = np.random.default_rng(seed)
+    r = cast(pose, edges, BEARINGS, MAX_RANGE, sigma_range=0.01, rng=rng)
+    return scan_points(r, BEARINGS, MAX_RANGE)
+
+
+def _cov(sigma_xy: float, sigma_theta_deg: float) -> np.ndarray:
+    return np.diag([sigma_xy**2, sigma_xy**2, max(np.deg2rad(sigma_theta_deg), 1e-6) ** 2])
+
+
+def _map(pose, edges, config=None) -> LocalMap:
+    local = LocalMap(config or ScanMatcherConfig())
+    local.add(_points(pose, edges, 0), np.asarray(pose))
+    return local
+
+
+def test_recovers_a_03_m_15_deg_offset_in_an_l_room_from_heading_hypotheses():
+    ref_pose = np.array([2.0, 2.0, 0.6])
+    true = np.array([2.25, 2.15, 0.6 + np.deg2rad(15.0)])  # 0.29 m and 15 deg away
+    local = _map(ref_pose, L_ROOM)
+    pts = _points(true, L_ROOM, 1)
+    result = match_scan(pts, local, ref_pose, _cov(0.2, 8.0))
+    assert result is not None
+    assert result.hypotheses > 5
+    assert np.hypot(*(result.pose[:2] - true[:2])) < 0.03
+    assert abs(wrap_angle(result.pose[2] - true[2])) < np.deg2rad(0.5)
+    assert np.allclose(result.cov, result.cov.T)
+    assert np.all(np.linalg.eigvalsh(result.cov) > 0)
+    err = result.pose - true
+    err[2] = wrap_angle(err[2])
+    assert err @ np.linalg.solve(result.cov, err) < 16.0  # within 4 sigma
+
+
+def test_a_single_hypothesis_at_the_prior_does_not_reach_the_truth():
+    """Why hypotheses: from 15 deg off a local Gauss-Newton alone ends elsewhere."""
+    ref_pose = np.array([2.0, 2.0, 0.6])
+    true = np.array([2.25, 2.15, 0.6 + np.deg2rad(15.0)])
+    local = _map(ref_pose, L_ROOM)
+    pts = _points(true, L_ROOM, 1)
+    config = ScanMatcherConfig(max_distance_start=0.3)
+    result = match_scan(pts, local, ref_pose, _cov(0.2, 0.0), config=config, use_prior=False)
+    assert result is None or abs(wrap_angle(result.pose[2] - true[2])) > np.deg2rad(2.0)
+
+
+def test_declines_in_a_featureless_corridor_unless_the_prior_fixes_the_free_direction():
+    local = _map(np.array([0.0, 0.0, 0.0]), CORRIDOR)
+    true = np.array([0.5, 0.05, np.deg2rad(3.0)])
+    pts = _points(true, CORRIDOR, 1)
+    prior = np.array([0.45, 0.0, 0.0])
+    assert match_scan(pts, local, prior, _cov(0.1, 8.0), use_prior=False) is None
+    # with the prior (maximum a posteriori) the scan fixes heading and lateral position,
+    # the prior the position along the corridor
+    result = match_scan(pts, local, prior, _cov(0.1, 8.0))
+    assert result is not None
+    assert abs(result.pose[1] - true[1]) < 0.02
+    assert abs(wrap_angle(result.pose[2] - true[2])) < np.deg2rad(0.5)
+    assert abs(result.pose[0] - prior[0]) < 0.01
+    assert np.sqrt(result.cov[0, 0]) > 0.07  # along the corridor: near the prior's 0.1 m
+    assert np.sqrt(result.cov[1, 1]) < 0.03
+
+
+def test_declines_with_an_empty_map_and_rejects_bad_input():
+    local = LocalMap(ScanMatcherConfig())
+    pts = _points(np.array([2.0, 2.0, 0.0]), L_ROOM, 0)
+    assert match_scan(pts, local, np.array([2.0, 2.0, 0.0]), _cov(0.1, 5.0)) is None
+    local = _map(np.array([2.0, 2.0, 0.0]), L_ROOM)
+    with pytest.raises(ValueError, match="points"):
+        match_scan(np.zeros((5, 3)), local, np.zeros(3), _cov(0.1, 5.0))
+    with pytest.raises(ValueError, match="prior_cov"):
+        match_scan(pts, local, np.zeros(3), -_cov(0.1, 5.0))
+    with pytest.raises(ValueError, match="prior_cov"):
+        match_scan(pts, local, np.zeros(3), np.eye(2))
+    # a turn on the spot: the odometry's covariance is singular, which is accepted
+    singular = np.diag([0.0, 0.0, np.deg2rad(5.0) ** 2])
+    assert match_scan(pts, local, np.array([2.0, 2.0, 0.05]), singular) is not None
+    with pytest.raises(ValueError, match="pose"):
+        match_scan(pts, local, np.zeros(2), _cov(0.1, 5.0))
+    with pytest.raises(ValueError, match="keyframes"):
+        ScanMatcherConfig(keyframes=0)
+
+
+def test_normals_are_perpendicular_to_a_wall_and_keyframes_are_bounded():
+    pts = _points(np.array([0.0, 0.0, 0.0]), CORRIDOR, 0)
+    normals, valid = scan_normals(pts, ScanMatcherConfig())
+    assert valid.mean() > 0.7  # far beams are more than normal_max_gap apart
+    assert np.all(np.abs(normals[valid, 0]) < 0.1)  # walls along x: normals along y
+    local = LocalMap(ScanMatcherConfig(keyframes=2))
+    for k in range(4):
+        local.add(pts, np.array([0.1 * k, 0.0, 0.0]))
+    assert len(local) == 2
