@@ -331,7 +331,11 @@ class FilterConfig:
             to its object lines (``u <= unknown_threshold``); 0 in the thesis. A set that
             fits a model only through its unknown lines (free-space boundaries, whose
             likelihood is broad) says little about the landmark: in ``house`` most wrong
-            associations had no beam on an object line.
+            associations had no beam on an object line. Measured with 0.3 on top of the
+            default (``vslam-gym evaluate`` seeds 0-4): association precision ``house``
+            0.74 -> 0.87, ``curved`` 0.97 -> 1.00, ATE ``single_landmark`` 0.32 -> 0.28
+            m, ``small`` and ``curved`` unchanged, but ``house`` ATE 0.22 -> 0.39 m and
+            final error 0.18 -> 0.55 m: not the default.
         prealign: whole-scan alignment before the landmark association
             (:mod:`vslam_gym.slam.scan_matching`; not in the thesis, its future work):
             ``"none"`` (the thesis); ``"odometry"``: the scan is aligned to the last
