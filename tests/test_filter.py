@@ -194,6 +194,7 @@ def test_icp_gate_floor_rejects_gross_corrections_and_keeps_plausible_ones():
 
     tight = gated([0.1, 0.1, 0.05])  # 0.4 m is 4 sigma: rejected, the map is kept apart
     assert "updated" not in {d.outcome for d in tight.decisions}
+    assert any(c[1] == "gated" for d in tight.decisions for c in d.candidates)
     assert len(tight.landmarks) > len(ungated.landmarks)  # modelled again instead
     # With the fallback the gated candidates are tested at the predicted pose, where
     # the scan (taken 0.4 m further on) does not fit the map either.

@@ -193,8 +193,9 @@ class SetDecision:
         candidates: per landmark tried: ``(id, icp_reason, mean_d2, var_d2, accepted)``
             (detection statistics at the ICP pose; NaN when not tested). ``icp_reason``
             is the ICP's stop reason, ``"far"`` when not aligned, or ``"gated"`` when the
-            ICP pose failed the plausibility gate and the predicted pose was tested
-            (``FilterConfig.icp_gate_fallback``).
+            ICP pose failed the plausibility gate (``FilterConfig.icp_max_pose_mahalanobis``;
+            with ``icp_gate_fallback`` the predicted pose was tested instead, else the
+            statistics are NaN).
     """
 
     first: int
@@ -595,7 +596,7 @@ class VertexSLAM:
                 cfg.icp_max_pose_mahalanobis
             ):
                 if not cfg.icp_gate_fallback:
-                    tried[c] = (lms[c].id, res.reason, np.nan, np.nan, False)
+                    tried[c] = (lms[c].id, "gated", np.nan, np.nan, False)
                     continue
                 test_pose, reason, m2 = pose, "gated", 0.0
             tested.append((c, test_pose, reason))
