@@ -35,8 +35,8 @@ class BeliefRewardConfig:
             time, times the cell side (about the length of newly modelled boundary; up to
             1.4 times it for a diagonal line). A duplicate landmark of a boundary that is
             already modelled earns nothing (in earlier versions the growth of the total
-            object-line length paid for every duplicate again, and PPO learned to make
-            duplicates).
+            object-line length paid for every duplicate again: a PPO policy earned 200
+            in 20 steps from spurious landmarks).
         collision: penalty of ``collision`` for a step in which the robot touched an
             obstacle (the robot feels its bumper; that is not map ground truth).
         time: cost of ``time`` per step.
