@@ -425,12 +425,16 @@ class VertexSLAM:
         scan = Scan.from_arrays(ranges, bearings, self.sensor)
         start = time.perf_counter()
         mode = self.config.filter.prealign
-        points = scan_points(scan.ranges, scan.bearings, scan.max_range)
-        if mode == "odometry":
-            self._prealigned = self._matched_motion_update(u, points)
-        else:
+        if mode == "none":
             self._motion_update(u)
-            self._prealigned = mode == "fuse" and self._fuse_match(points)
+            self._prealigned = False
+        else:
+            points = scan_points(scan.ranges, scan.bearings, scan.max_range)
+            if mode == "odometry":
+                self._prealigned = self._matched_motion_update(u, points)
+            else:
+                self._motion_update(u)
+                self._prealigned = self._fuse_match(points)
         self._decisions = tuple(self._measurement_update(scan))
         self._refresh_models()
         if mode == "fuse":
