@@ -28,7 +28,6 @@ of the map; scan points in the lidar frame [m]. Pure numpy/scipy.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +47,8 @@ __all__ = [
 ]
 
 
+AMBIGUITY_MODES = ("decline", "prior")
+"""``ScanMatcherConfig.on_ambiguity``."""
 PSD_TOLERANCE = 1e-9
 """Relative negative eigenvalue of ``prior_cov`` still accepted as round-off."""
 
@@ -57,7 +58,15 @@ class ScanMatcherConfig:
     """Parameters of the whole-scan matcher (not thesis values; measured on the logs).
 
     Attributes:
-        keyframes: scans kept in the local map (the last ones).
+        keyframes: keyframes kept in the local map (the last ones).
+        keyframe_distance: a scan becomes a keyframe only when its pose is at least this
+            far [m] from the last keyframe's ...
+        keyframe_heading_deg: ... or turned at least this much [deg] from it; with both
+            0 every scan is a keyframe (the local map is the last ``keyframes`` scans).
+        revisit_radius: besides the last ``keyframes``, the local map holds the older
+            keyframes whose pose lies within this distance [m] of the predicted pose
+            (an implicit loop closure when the drift is small on a revisit); 0: off.
+        revisit_max_keyframes: at most this many older keyframes (the nearest ones).
         coarse_stride: in the coarse phase (every hypothesis) every this-many-th return
             of the current scan is aligned (speed); the refinement uses every return and
             the local map keeps every return.
@@ -100,6 +109,10 @@ class ScanMatcherConfig:
             ``ambiguity_translation`` or ``ambiguity_heading_deg`` and whose inlier
             fraction is at least this times the winner's makes the match ambiguous.
         ambiguity_translation: see ``ambiguity_ratio`` [m].
+        on_ambiguity: what an ambiguous match returns: ``"decline"`` (None; the caller
+            falls back to its prior) or ``"prior"`` (of the poses within
+            ``ambiguity_ratio`` of the best inlier fraction, the one nearest the prior,
+            Mahalanobis distance; reason ``"ambiguous_prior"``).
         ambiguity_heading_deg: see ``ambiguity_ratio`` [deg].
         min_constraint: smallest eigenvalue of the inliers' normal scatter
             ``sum w n n^T / sum w``; a corridor (all normals parallel) has about 0 and
@@ -116,6 +129,10 @@ class ScanMatcherConfig:
     """
 
     keyframes: int = 20
+    keyframe_distance: float = 0.0
+    keyframe_heading_deg: float = 0.0
+    revisit_radius: float = 0.0
+    revisit_max_keyframes: int = 20
     coarse_stride: int = 3
     normal_half_windows: tuple[int, ...] = (2, 4, 8)
     normal_min_extent: float = 0.2
@@ -141,6 +158,7 @@ class ScanMatcherConfig:
     ambiguity_ratio: float = 0.97
     ambiguity_translation: float = 0.3
     ambiguity_heading_deg: float = 3.0
+    on_ambiguity: str = "decline"
     min_constraint: float = 0.05
     covariance_inflation: float = 10.0
     sigma_floor: tuple[float, float, float] = (0.01, 0.01, 0.002)
@@ -152,6 +170,7 @@ class ScanMatcherConfig:
             "coarse_iterations",
             "refine_candidates",
             "refine_iterations",
+            "revisit_max_keyframes",
         ):
             value = getattr(self, name)
             if isinstance(value, bool) or int(value) < 1:
@@ -180,10 +199,19 @@ class ScanMatcherConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"ScanMatcherConfig.{name} must be finite and > 0, got {value}")
+        for name in ("keyframe_distance", "keyframe_heading_deg", "revisit_radius"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"ScanMatcherConfig.{name} must be finite and >= 0, got {value}")
         for name in ("min_inlier_fraction", "ambiguity_ratio", "min_constraint"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"ScanMatcherConfig.{name} must lie in [0, 1], got {value}")
+        if self.on_ambiguity not in AMBIGUITY_MODES:
+            raise ValueError(
+                f"ScanMatcherConfig.on_ambiguity must be one of {AMBIGUITY_MODES}, "
+                f"got {self.on_ambiguity!r}"
+            )
         if not self.normal_half_windows or any(int(w) < 1 for w in self.normal_half_windows):
             raise ValueError(
                 "ScanMatcherConfig.normal_half_windows must be integers >= 1, got "
@@ -282,40 +310,99 @@ def _transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 class LocalMap:
-    """The points and normals of the last ``config.keyframes`` scans in the map frame."""
+    """Keyframes (points and normals in the map frame) and the reference built from them.
+
+    The reference is the last ``config.keyframes`` keyframes plus, with
+    ``config.revisit_radius``, the older keyframes near the position the caller asks
+    about (:meth:`reference`). A scan becomes a keyframe when it moved or turned enough
+    from the last one (``keyframe_distance``, ``keyframe_heading_deg``).
+    """
 
     def __init__(self, config: ScanMatcherConfig) -> None:
         self.config = config
-        self._frames: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=int(config.keyframes))
+        self._points: list[np.ndarray] = []  # per keyframe, (m, 2) map frame [m]
+        self._normals: list[np.ndarray] = []
+        self._poses: list[np.ndarray] = []
         self._reference: tuple[cKDTree, np.ndarray, np.ndarray] | None = None
+        self._selection: tuple[int, ...] = ()
 
     def __len__(self) -> int:
-        return len(self._frames)
+        """Keyframes in the reference without revisits (at most ``config.keyframes``)."""
+        return min(len(self._points), int(self.config.keyframes))
+
+    @property
+    def stored(self) -> int:
+        """Every keyframe kept (older ones only with ``revisit_radius``)."""
+        return len(self._points)
 
     def clear(self) -> None:
         """Forget every keyframe."""
-        self._frames.clear()
+        self._points.clear()
+        self._normals.clear()
+        self._poses.clear()
         self._reference = None
+        self._selection = ()
 
-    def add(self, points: np.ndarray, pose: np.ndarray) -> None:
-        """Add a scan's lidar-frame points ``(m, 2)`` [m] seen from ``pose`` (map frame)."""
+    def is_keyframe(self, pose: np.ndarray) -> bool:
+        """Whether a scan at ``pose`` (map frame) would become a keyframe."""
+        if not self._poses:
+            return True
+        cfg = self.config
+        last = self._poses[-1]
+        moved = float(np.hypot(pose[0] - last[0], pose[1] - last[1]))
+        turned = abs(float(wrap_angle(pose[2] - last[2])))
+        return moved >= cfg.keyframe_distance or turned >= np.deg2rad(cfg.keyframe_heading_deg)
+
+    def add(self, points: np.ndarray, pose: np.ndarray) -> bool:
+        """Add a scan's lidar-frame points ``(m, 2)`` [m] seen from ``pose`` (map frame).
+
+        Returns whether it became a keyframe.
+        """
         pose = check_pose(pose)
+        if not self.is_keyframe(pose):
+            return False
         normals, valid = scan_normals(points, self.config)
         if not np.any(valid):
-            return
+            return False
         c, s = np.cos(pose[2]), np.sin(pose[2])
         rot = np.array([[c, s], [-s, c]])
-        self._frames.append((_transform(pose, points[valid]), normals[valid] @ rot))
-        self._reference = None
+        self._points.append(_transform(pose, points[valid]))
+        self._normals.append(normals[valid] @ rot)
+        self._poses.append(pose.copy())
+        if self.config.revisit_radius <= 0 and len(self._points) > self.config.keyframes:
+            del self._points[0], self._normals[0], self._poses[0]  # never needed again
+            self._selection = ()
+        return True
 
-    def reference(self) -> tuple[cKDTree, np.ndarray, np.ndarray] | None:
-        """``(tree, points (N, 2), normals (N, 2))`` of every keyframe, or None if empty."""
-        if not self._frames:
+    def _select(self, near: np.ndarray | None) -> tuple[int, ...]:
+        count = len(self._points)
+        recent = list(range(max(0, count - int(self.config.keyframes)), count))
+        older = count - len(recent)
+        if near is None or self.config.revisit_radius <= 0 or older == 0:
+            return tuple(recent)
+        poses = np.array(self._poses[:older])
+        dist = np.hypot(poses[:, 0] - near[0], poses[:, 1] - near[1])
+        close = np.flatnonzero(dist <= self.config.revisit_radius)
+        close = close[np.argsort(dist[close], kind="stable")][: self.config.revisit_max_keyframes]
+        return tuple(sorted(int(i) for i in close)) + tuple(recent)
+
+    def reference(
+        self, near: np.ndarray | None = None
+    ) -> tuple[cKDTree, np.ndarray, np.ndarray] | None:
+        """``(tree, points (N, 2), normals (N, 2))`` of the selected keyframes, or None.
+
+        Args:
+            near: ``(>=2,)`` map position [m] around which older keyframes are selected
+                (``revisit_radius``); None: the last ``keyframes`` only.
+        """
+        if not self._points:
             return None
-        if self._reference is None:
-            pts = np.concatenate([f[0] for f in self._frames])
-            nrm = np.concatenate([f[1] for f in self._frames])
+        selection = self._select(near)
+        if self._reference is None or selection != self._selection:
+            pts = np.concatenate([self._points[i] for i in selection])
+            nrm = np.concatenate([self._normals[i] for i in selection])
             self._reference = (cKDTree(pts), pts, nrm)
+            self._selection = selection
         return self._reference
 
 
@@ -471,7 +558,8 @@ def match_scan_why(
 ) -> tuple[MatchResult | None, str]:
     """:func:`match_scan` and why it declined (for diagnostics).
 
-    The reason is ``"matched"``, ``"empty"``, ``"few_points"``, ``"few_inliers"``,
+    The reason is ``"matched"``, ``"ambiguous_prior"`` (matched, see
+    ``ScanMatcherConfig.on_ambiguity``), ``"empty"``, ``"few_points"``, ``"few_inliers"``,
     ``"ambiguous"`` or ``"degenerate"``.
     """
     config = config or local_map.config
@@ -488,7 +576,7 @@ def match_scan_why(
     # A turn on the spot has a singular odometry covariance: floor it.
     floor = np.diag(np.asarray(config.sigma_floor, dtype=float) ** 2)
     info = np.linalg.inv(prior_cov + floor) if use_prior else np.zeros((3, 3))
-    reference = local_map.reference()
+    reference = local_map.reference(prior)
     if reference is None:
         return None, "empty"
     if points.shape[0] < config.min_points:
@@ -527,15 +615,25 @@ def match_scan_why(
     distinct = (d_trans > config.ambiguity_translation) | (
         d_head > np.deg2rad(config.ambiguity_heading_deg)
     )
-    if np.any(distinct & (fraction >= config.ambiguity_ratio * fraction[best])):
-        return None, "ambiguous"
+    reason = "matched"
+    rivals = fraction >= config.ambiguity_ratio * fraction[best]
+    if np.any(distinct & rivals):
+        if config.on_ambiguity == "decline":
+            return None, "ambiguous"
+        # The rival nearest the prior (without a prior term: the best inlier fraction).
+        d = term.offset(poses.copy())
+        mahalanobis = np.einsum("hi,ij,hj->h", d, term.info, d)
+        mahalanobis[~rivals] = np.inf
+        if use_prior:
+            best = int(np.argmin(mahalanobis))
+        reason = "ambiguous_prior"
     cov = _covariance(res, best, term, config, check_constraint=not use_prior)
     if cov is None:
         return None, "degenerate"
     result = MatchResult(
         poses[best].copy(), cov, float(fraction[best]), int(points.shape[0]), starts.shape[0]
     )
-    return result, "matched"
+    return result, reason
 
 
 def _covariance(
