@@ -13,6 +13,11 @@ Usage::
 
     python benchmarks/bench_scan_matching.py LOG [--odometry synthetic|logged]
                                              [--seeds 0-4] [--max-scans N]
+                                             [--preset logs|default]
+
+``--preset`` picks the matcher configuration (``SlamConfig.preset(name).matcher``):
+``logs`` (default) or ``default`` (the matcher before keyframe revisits and
+``on_ambiguity``).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from vslam_gym.logs import (
 )
 from vslam_gym.replay import DEFAULT_MAX_RANGE
 from vslam_gym.slam.config import FilterConfig
+from vslam_gym.slam.filter import SlamConfig
 from vslam_gym.slam.motion import (
     compose,
     frame_rotation,
@@ -53,7 +59,7 @@ def run(log: CarmenLog, increments: np.ndarray, n: int, config: ScanMatcherConfi
     filt = FilterConfig()
     local = LocalMap(config)
     pose = log.poses[0].copy()
-    local.add(scan_points(log.ranges[0], log.bearings, log.max_range), pose)
+    local.add(scan_points(log.ranges[0], log.bearings, log.max_range), pose)  # scan 0
     poses, cpu_ms, reasons = [pose], [], collections.Counter()
     for k in range(1, n):
         u = increments[k - 1]
@@ -86,6 +92,7 @@ def main() -> None:
     parser.add_argument("--odometry", choices=("synthetic", "logged"), default="synthetic")
     parser.add_argument("--seeds", default="0-4", help="synthetic odometry seeds, e.g. 0-4")
     parser.add_argument("--max-scans", type=int, default=None)
+    parser.add_argument("--preset", choices=("logs", "default"), default="logs")
     args = parser.parse_args()
     print(machine_description())
     log = read_carmen(args.log, CarmenConfig(max_range=DEFAULT_MAX_RANGE))
@@ -94,7 +101,8 @@ def main() -> None:
     ates = []
     for seed in seeds:
         inc = synthetic_increments(log, seed) if args.odometry == "synthetic" else None
-        out = run(log, inc if inc is not None else logged_increments(log), n, ScanMatcherConfig())
+        increments = inc if inc is not None else logged_increments(log)
+        out = run(log, increments, n, SlamConfig.preset(args.preset).matcher)
         ates.append(out["ate_rmse_m"])
         print(
             f"{args.odometry} seed {seed}: ATE {out['ate_rmse_m']:.3f} m, "

@@ -349,6 +349,12 @@ class FilterConfig:
             last scans placed at the filter's pose estimates, and the aligned pose is
             fused as a direct pose measurement (``H = [I, 0]``) after the motion update.
             Measured in the README ("Replaying a Carmen log").
+        create_beside_candidates: an unmatched set becomes a new landmark even when a
+            landmark near it was aligned and tested (and failed the gate or the
+            detection test); True in the thesis. False: only a set whose candidates
+            were all too far (``candidate_max_median_distance``) or that had none
+            creates one; a re-observation that fails its test is then not modelled
+            again as a duplicate. False in the ``logs`` preset (measured in the README).
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -374,6 +380,7 @@ class FilterConfig:
     observation_information_scale: float = 1.0
     min_object_beam_fraction: float = 0.0
     prealign: str = "none"
+    create_beside_candidates: bool = True
 
     def __post_init__(self) -> None:
         floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
