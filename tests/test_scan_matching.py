@@ -115,3 +115,45 @@ def test_normals_are_perpendicular_to_a_wall_and_keyframes_are_bounded():
     for k in range(4):
         local.add(pts, np.array([0.1 * k, 0.0, 0.0]))
     assert len(local) == 2
+
+
+def test_keyframes_by_motion_and_older_keyframes_near_the_prior():
+    pts = _points(np.array([0.0, 0.0, 0.0]), CORRIDOR, 0)
+    local = LocalMap(ScanMatcherConfig(keyframe_distance=0.5, keyframe_heading_deg=10.0))
+    added = [local.add(pts, np.array([0.1 * k, 0.0, 0.0])) for k in range(11)]
+    assert added == [k % 5 == 0 for k in range(11)]  # every 0.5 m
+    assert local.add(pts, np.array([1.05, 0.0, np.deg2rad(12.0)]))  # turned enough
+    # revisits: 2 recent keyframes, older ones only near the asked position
+    local = LocalMap(ScanMatcherConfig(keyframes=2, revisit_radius=1.0))
+    for x in (0.0, 5.0, 10.0, 15.0):
+        local.add(pts, np.array([x, 0.0, 0.0]))
+    assert len(local) == 2 and local.stored == 4
+    recent = local.reference()[1].shape[0]
+    near_start = local.reference(np.array([0.3, 0.0]))[1].shape[0]
+    assert near_start == recent * 3 // 2  # the same scan three times instead of twice
+    assert local.reference(np.array([7.0, 0.0]))[1].shape[0] == recent
+    # without revisits old keyframes are dropped
+    local = LocalMap(ScanMatcherConfig(keyframes=2))
+    for x in (0.0, 5.0, 10.0):
+        local.add(pts, np.array([x, 0.0, 0.0]))
+    assert local.stored == 2
+
+
+def test_an_ambiguous_match_is_declined_or_resolved_by_the_prior():
+    """A square room seen from its centre looks the same every 90 deg."""
+    square = polygon_edges([np.array([[-3.0, -3.0], [3.0, -3.0], [3.0, 3.0], [-3.0, 3.0]])])
+    ref_pose = np.array([0.0, 0.0, 0.0])
+    local = LocalMap(ScanMatcherConfig())
+    for k in range(4):  # the whole room in the map
+        pose = np.array([0.0, 0.0, k * np.pi / 2])
+        local.add(_points(pose, square, k), pose)
+    true = np.array([0.0, 0.0, np.deg2rad(10.0)])
+    pts = _points(true, square, 1)
+    wide = _cov(0.05, 30.0)  # hypotheses over +-120 deg: three quarter turns are rivals
+    assert match_scan(pts, local, ref_pose, wide) is None
+    config = ScanMatcherConfig(on_ambiguity="prior")
+    result = match_scan(pts, local, ref_pose, wide, config=config)
+    assert result is not None
+    assert abs(wrap_angle(result.pose[2] - true[2])) < np.deg2rad(0.5)
+    with pytest.raises(ValueError, match="on_ambiguity"):
+        ScanMatcherConfig(on_ambiguity="guess")
