@@ -225,3 +225,89 @@ def test_min_object_beam_fraction_is_validated_and_off_in_the_thesis():
     assert thesis.icp_max_pose_mahalanobis == float("inf") and not thesis.icp_gate_fallback
     with pytest.raises(ValueError, match="min_object_beam_fraction"):
         SlamConfig.from_dict({"filter": {"min_object_beam_fraction": 1.5}})
+
+
+def _gated_config(**extra):
+    return SlamConfig.from_dict(
+        {
+            "filter": {
+                "icp_max_pose_mahalanobis": 3.0,
+                "icp_gate_sigma_floor": [0.1, 0.1, 0.05],
+                **extra,
+            }
+        }
+    )
+
+
+def test_icp_stop_beyond_gate_saves_iterations_without_changing_decisions(monkeypatch):
+    import vslam_gym.slam.filter as filter_module
+
+    results = []
+    original = filter_module.align_many
+
+    def recording(*args, **kwargs):
+        out = original(*args, **kwargs)
+        results.append(out)
+        return out
+
+    monkeypatch.setattr(filter_module, "align_many", recording)
+    runs = {}
+    for stop in (0.0, 1.0):
+        results.clear()
+        belief = _kidnapped_update(_gated_config(icp_stop_beyond_gate=stop))
+        runs[stop] = (belief, [r for batch in results for r in batch])
+    (full, full_icp), (stopped, stopped_icp) = runs[0.0], runs[1.0]
+    # 0.4 m is 4 sigma of the gate: the same candidates are gated either way ...
+    assert [(d.outcome, d.landmark) for d in stopped.decisions] == [
+        (d.outcome, d.landmark) for d in full.decisions
+    ]
+    assert len(stopped.landmarks) == len(full.landmarks)
+    np.testing.assert_array_equal(stopped.pose, full.pose)
+    # ... but the alignments that left the gate stopped there
+    assert any(r.reason == "out_of_bound" for r in stopped_icp)
+    assert sum(r.iterations for r in stopped_icp) < sum(r.iterations for r in full_icp)
+    # a 1.3 sigma correction (looser floor) stays inside the bound: nothing changes
+    loose = {"icp_gate_sigma_floor": [0.3, 0.3, 0.1]}
+    a = _kidnapped_update(_gated_config(**loose))
+    b = _kidnapped_update(_gated_config(icp_stop_beyond_gate=1.0, **loose))
+    assert "updated" in {d.outcome for d in b.decisions}
+    np.testing.assert_array_equal(a.pose, b.pose)
+    with pytest.raises(ValueError, match="icp_stop_beyond_gate"):
+        SlamConfig.from_dict({"filter": {"icp_stop_beyond_gate": -1.0}})
+
+
+def test_creation_overlap_distance_keeps_a_gated_reobservation_from_duplicating():
+    plain = _kidnapped_update(_gated_config())
+    assert "created" in {d.outcome for d in plain.decisions}
+    # the re-observation lies 0.4 m from the mapped objects at the predicted pose
+    guarded = _kidnapped_update(_gated_config(creation_overlap_distance=0.5))
+    overlapping = [d for d in guarded.decisions if d.outcome == "overlapping"]
+    assert overlapping and "created" not in {d.outcome for d in guarded.decisions}
+    assert len(guarded.landmarks) < len(plain.landmarks)
+    assert {d.landmark for d in overlapping} <= {lm.id for lm in guarded.landmarks}
+    # too small a distance changes nothing
+    tight = _kidnapped_update(_gated_config(creation_overlap_distance=0.05))
+    assert len(tight.landmarks) == len(plain.landmarks)
+    with pytest.raises(ValueError, match="creation_overlap_distance"):
+        SlamConfig.from_dict({"filter": {"creation_overlap_distance": -0.1}})
+
+
+def test_detection_model_sigma_loosens_the_detection_test_only():
+    def first_landmark(sigma):
+        slam = VertexSLAM(SENSOR, _gated_config(detection_model_sigma=sigma))
+        rng = np.random.default_rng(1)
+        noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+        edges = polygon_edges(OBJECTS[:2])
+        slam.step([0.0, 0.0, 0.0], cast(np.zeros(3), edges, PHI, *noise), PHI)
+        lm = slam._landmarks[0]
+        return slam._model(lm), slam._detection_model(lm), slam
+
+    model, plain, _ = first_landmark(0.0)
+    assert plain is model  # off: the detection test sees the state's own model
+    state_model, inflated, slam = first_landmark(0.05)
+    np.testing.assert_array_equal(state_model.cov, model.cov)  # the state is unchanged
+    np.testing.assert_array_equal(inflated.mean, model.mean)
+    np.testing.assert_allclose(inflated.cov - model.cov, 0.05**2 * np.eye(model.cov.shape[0]))
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+    with pytest.raises(ValueError, match="detection_model_sigma"):
+        SlamConfig.from_dict({"filter": {"detection_model_sigma": -0.01}})

@@ -349,6 +349,23 @@ class FilterConfig:
             last scans placed at the filter's pose estimates, and the aligned pose is
             fused as a direct pose measurement (``H = [I, 0]``) after the motion update.
             Measured in the README ("Replaying a Carmen log").
+        creation_overlap_distance: an unmatched set is not made a new landmark when the
+            median distance [m] of its points to the object lines of an aligned candidate
+            landmark (at that candidate's ICP pose if it passed the gate, or at the
+            predicted pose) is at most this; its decision reads ``"overlapping"``. 0
+            (the thesis) creates a landmark from every unmatched detectable set, so an
+            object whose re-observation fails the detection test (a coarsely modelled
+            corner) is modelled again: a duplicate landmark.
+        detection_model_sigma: isotropic standard deviation [m] added to every vertex's
+            covariance in the detection test only (not in the state): the model's shape
+            error (a corner cut by the model selection), which does not average out over
+            updates the way the vertex covariances do. 0 in the thesis.
+        icp_stop_beyond_gate: a per-landmark ICP stops (reason ``"out_of_bound"``) after
+            the first step that takes its pose beyond this many times the plausibility
+            gate (``icp_max_pose_mahalanobis``, same covariance); such a result fails
+            the gate unless the alignment would have come back. 0 (the thesis) lets
+            every alignment run to convergence. A speed measure: diverging alignments
+            cost about a quarter of the ICP iterations in ``house``.
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -374,6 +391,9 @@ class FilterConfig:
     observation_information_scale: float = 1.0
     min_object_beam_fraction: float = 0.0
     prealign: str = "none"
+    creation_overlap_distance: float = 0.0
+    detection_model_sigma: float = 0.0
+    icp_stop_beyond_gate: float = 0.0
 
     def __post_init__(self) -> None:
         floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
@@ -388,6 +408,20 @@ class FilterConfig:
             raise ValueError(
                 "FilterConfig.min_object_beam_fraction must lie in [0, 1], got "
                 f"{self.min_object_beam_fraction!r}"
+            )
+        if not self.icp_stop_beyond_gate >= 0.0:
+            raise ValueError(
+                f"FilterConfig.icp_stop_beyond_gate must be >= 0, got {self.icp_stop_beyond_gate!r}"
+            )
+        if not self.detection_model_sigma >= 0.0:
+            raise ValueError(
+                "FilterConfig.detection_model_sigma must be >= 0 [m], got "
+                f"{self.detection_model_sigma!r}"
+            )
+        if not self.creation_overlap_distance >= 0.0:
+            raise ValueError(
+                "FilterConfig.creation_overlap_distance must be >= 0 [m], got "
+                f"{self.creation_overlap_distance!r}"
             )
         if self.new_landmark not in ("thesis", "augment", "halved"):
             raise ValueError(

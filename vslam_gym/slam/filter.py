@@ -45,6 +45,7 @@ from vslam_gym.slam.icp import (
     IcpConfig,
     IcpResult,
     LineGeometry,
+    PoseBound,
     align_many,
     candidate_landmarks,
     line_geometry,
@@ -187,6 +188,9 @@ class SetDecision:
         outcome: ``"updated"`` (associated, map updated), ``"associated"`` (matched
             but too few object lines observed to update), ``"created"`` (new landmark),
             ``"unmatched"`` (no landmark, not detectable enough to create one),
+            ``"overlapping"`` (no landmark accepted it, but its points lie on the object
+            lines of the candidate ``landmark``, so no new landmark was made:
+            ``FilterConfig.creation_overlap_distance``),
             ``"skipped"`` (too few beams or a single initial line) or ``"failed"`` (a
             numerical failure; the state was left as before this set).
         landmark: the landmark id it was associated with or created as, else -1.
@@ -246,7 +250,8 @@ class _Landmark:
     refreshed_at: np.ndarray | None = None  # reference at the last refresh
     # Derived data of ``model`` for the association (built on first use, dropped with it).
     geometry: LineGeometry | None = None  # icp.line_geometry
-    parts: Any = None  # detection.model_parts
+    parts: Any = None  # detection.model_parts of detection_model
+    detection_model: LandmarkModel | None = None  # model with detection_model_sigma
 
 
 class _MapSnapshot:
@@ -318,6 +323,14 @@ class _SetWork:
     landmarks: list[_Landmark]
     geometry: list[LineGeometry]
     aligned: np.ndarray  # indices into landmarks that are aligned (not "far")
+
+
+@dataclass(frozen=True)
+class _Overlap:
+    """The candidate landmark a set lies closest to (``_associate``)."""
+
+    landmark: int
+    distance: float  # median point-to-object-line distance [m]
 
 
 @dataclass
@@ -567,12 +580,14 @@ class VertexSLAM:
 
     def _associate(
         self, scan: Scan, work: _SetWork, results: list, lam: float
-    ) -> tuple[_Association | None, tuple]:
+    ) -> tuple[_Association | None, tuple, _Overlap | None]:
         """Maximum-likelihood landmark for a set (4.3.4-4.3.18) and the candidates tried.
 
         ``results``: the ICP alignment of the set to each of ``work.aligned``. The
         accepted candidates are tested together
-        (:func:`~vslam_gym.slam.detection.detect_many`).
+        (:func:`~vslam_gym.slam.detection.detect_many`). The third value is the
+        candidate whose object lines the set lies closest to (:meth:`_overlap`; None
+        when ``creation_overlap_distance`` is off or no candidate has object lines).
         """
         lms, pose = work.landmarks, self._mu[:3]
         tried: list[tuple | None] = [None] * len(lms)
@@ -584,7 +599,7 @@ class VertexSLAM:
         log_norm = -0.5 * (3 * np.log(2 * np.pi)) - np.log(np.diag(chol)).sum()
         gate = np.isfinite(cfg.icp_max_pose_mahalanobis)
         if gate:
-            gate_cov = cov_x + np.diag(np.square(cfg.icp_gate_sigma_floor))
+            gate_cov = self._gate_covariance()
             chol_gate = np.linalg.cholesky(gate_cov)
         tested: list[tuple[int, np.ndarray, str]] = []  # (candidate, pose to test, reason)
         m2s = {}
@@ -608,7 +623,7 @@ class VertexSLAM:
         best, best_score = None, -np.inf
         if tested:
             dets = detect_many(
-                [self._model(lms[c]) for c, _, _ in tested],
+                [self._detection_model(lms[c]) for c, _, _ in tested],
                 scan,
                 work.first,
                 work.last,
@@ -644,7 +659,35 @@ class VertexSLAM:
         done = tuple(t for t in tried if t is not None)
         if best is not None:
             best.candidates = done
-        return best, done
+            return best, done, None
+        overlap = None
+        if cfg.creation_overlap_distance > 0.0:
+            poses = {c: p for c, p, reason in tested if reason != "gated"}
+            overlap = self._overlap(scan, work, poses)
+        return best, done, overlap
+
+    def _overlap(self, scan: Scan, work: _SetWork, poses: dict) -> _Overlap | None:
+        """The aligned candidate whose object lines the set's points lie closest to.
+
+        Per candidate the median distance [m] of the set's points to the model's object
+        lines (``u <= unknown_threshold``), at the candidate's ICP pose (``poses``, when
+        it passed the gate) and at the predicted pose; the smaller counts.
+        """
+        best = None
+        threshold = self.config.model.unknown_threshold
+        for c in work.aligned.tolist():
+            lm = work.landmarks[c]
+            obj = self._model(lm).u <= threshold
+            if not np.any(obj):
+                continue
+            lines = [work.geometry[c].subset(obj)]
+            dist = float(_median_distances(work.points, lines)[0])
+            if c in poses:
+                pts = self._set_points(scan, work.first, work.last, poses[c])
+                dist = min(dist, float(_median_distances(pts, lines)[0]))
+            if best is None or dist < best.distance:
+                best = _Overlap(lm.id, dist)
+        return best
 
     def _enough_object_beams(self, det) -> bool:
         """At least ``min_object_beam_fraction`` of the set's beams on object lines."""
@@ -653,6 +696,39 @@ class VertexSLAM:
             return True
         on_object = det.association.u <= self.config.model.unknown_threshold
         return bool(np.mean(on_object) >= fraction)
+
+    def _gate_covariance(self) -> np.ndarray:
+        """The pose covariance plus ``icp_gate_sigma_floor`` squared on the diagonal."""
+        floor = np.square(self.config.filter.icp_gate_sigma_floor)
+        return self._sigma[:3, :3] + np.diag(floor)
+
+    def _icp_bounds(self, landmarks: list[_Landmark]) -> list[PoseBound | None] | None:
+        """Per alignment the ICP stop bound (``FilterConfig.icp_stop_beyond_gate``)."""
+        cfg = self.config.filter
+        factor = cfg.icp_stop_beyond_gate
+        if factor <= 0.0 or not np.isfinite(cfg.icp_max_pose_mahalanobis):
+            return None
+        limit = factor * cfg.icp_max_pose_mahalanobis
+        gate_cov = self._gate_covariance()
+        if not cfg.icp_gate_includes_reference:
+            bound = PoseBound(np.linalg.inv(np.linalg.cholesky(gate_cov)), limit)
+            return [bound] * len(landmarks)
+        bounds: list[PoseBound | None] = []
+        for lm in landmarks:
+            try:
+                cov = self._gate_covariance_with_reference(lm, gate_cov)
+                bounds.append(PoseBound(np.linalg.inv(np.linalg.cholesky(cov)), limit))
+            except np.linalg.LinAlgError:
+                bounds.append(None)
+        return bounds
+
+    def _gate_covariance_with_reference(self, lm: _Landmark, gate_cov: np.ndarray) -> np.ndarray:
+        """``gate_cov`` plus the reference's uncertainty relative to the pose."""
+        r = slice(lm.ref, lm.ref + REF_DIM)
+        cov = gate_cov.copy()
+        cross = self._sigma[:2, r]
+        cov[:2, :2] += self._sigma[r, r] - cross - cross.T
+        return cov
 
     def _gate_distance(
         self, lm: _Landmark, d: np.ndarray, gate_cov: np.ndarray, chol_gate: np.ndarray
@@ -666,10 +742,7 @@ class VertexSLAM:
         """
         if not self.config.filter.icp_gate_includes_reference:
             return float(np.linalg.norm(np.linalg.solve(chol_gate, d)))
-        r = slice(lm.ref, lm.ref + REF_DIM)
-        cov = gate_cov.copy()
-        cross = self._sigma[:2, r]
-        cov[:2, :2] += self._sigma[r, r] - cross - cross.T
+        cov = self._gate_covariance_with_reference(lm, gate_cov)
         try:
             m2 = float(d @ np.linalg.solve(cov, d))
         except np.linalg.LinAlgError:
@@ -683,7 +756,7 @@ class VertexSLAM:
         )
         lam = exponential_rate(scan.ranges, scan.max_range)
         decisions: list[SetDecision] = []
-        unmatched: list[tuple[int, int]] = []
+        unmatched: list[tuple[int, int, tuple, _Overlap | None]] = []
         associations: list[_Association] = []
         # Every set is associated against the map as it was before this scan: first
         # each set's candidates, then all alignments, then each set's detection tests.
@@ -707,16 +780,19 @@ class VertexSLAM:
                 self.sensor.max_range,
                 self.sensor.half_fov,
                 lines=[w.geometry[c] for w, c in pairs],
+                bounds=self._icp_bounds([w.landmarks[c] for w, c in pairs]),
             )
         at = 0
         for first, last, work in works:
             if work is None:
-                unmatched.append((first, last, ()))
+                unmatched.append((first, last, (), None))
                 continue
-            assoc, tried = self._associate(scan, work, results[at : at + work.aligned.size], lam)
+            assoc, tried, overlap = self._associate(
+                scan, work, results[at : at + work.aligned.size], lam
+            )
             at += work.aligned.size
             if assoc is None:
-                unmatched.append((first, last, tried))
+                unmatched.append((first, last, tried, overlap))
             else:
                 associations.append(assoc)
         for assoc in associations:
@@ -726,7 +802,11 @@ class VertexSLAM:
             decisions.append(
                 SetDecision(assoc.first, assoc.last, outcome, assoc.landmark.id, assoc.candidates)
             )
-        for first, last, tried in unmatched:
+        limit = self.config.filter.creation_overlap_distance
+        for first, last, tried, overlap in unmatched:
+            if overlap is not None and overlap.distance <= limit:
+                decisions.append(SetDecision(first, last, "overlapping", overlap.landmark, tried))
+                continue
             created = self._create_landmark(scan, first, last)
             outcome = "created" if created is not None else "unmatched"
             decisions.append(
@@ -928,16 +1008,27 @@ class VertexSLAM:
 
     @staticmethod
     def _set_model(lm: _Landmark, model: LandmarkModel | None) -> None:
-        lm.model, lm.geometry, lm.parts = model, None, None
+        lm.model, lm.geometry, lm.parts, lm.detection_model = model, None, None, None
 
     def _geometry(self, lm: _Landmark) -> LineGeometry:
         if lm.geometry is None:
             lm.geometry = line_geometry(self._model(lm))
         return lm.geometry
 
+    def _detection_model(self, lm: _Landmark) -> LandmarkModel:
+        """The model the detection test sees: ``detection_model_sigma`` added per vertex."""
+        if lm.detection_model is None:
+            model = self._model(lm)
+            sigma = self.config.filter.detection_model_sigma
+            if sigma > 0.0:
+                cov = model.cov + sigma**2 * np.eye(model.cov.shape[0])
+                model = LandmarkModel(model.mean, cov, model.u, model.closed)
+            lm.detection_model = model
+        return lm.detection_model
+
     def _parts(self, lm: _Landmark):
         if lm.parts is None:
-            lm.parts = model_parts(self._model(lm))
+            lm.parts = model_parts(self._detection_model(lm))
         return lm.parts
 
 
