@@ -311,3 +311,48 @@ def test_detection_model_sigma_loosens_the_detection_test_only():
     assert np.linalg.eigvalsh(slam._sigma).min() > 0
     with pytest.raises(ValueError, match="detection_model_sigma"):
         SlamConfig.from_dict({"filter": {"detection_model_sigma": -0.01}})
+
+
+def test_predicted_first_aligns_only_candidates_rejected_at_the_prediction(monkeypatch):
+    import vslam_gym.slam.filter as filter_module
+
+    aligned = []
+    original = filter_module.align_many
+
+    def counting(points, models, *args, **kwargs):
+        aligned.append(len(models))
+        return original(points, models, *args, **kwargs)
+
+    monkeypatch.setattr(filter_module, "align_many", counting)
+
+    def two_looks(mode, second_pose, floor=(0.3, 0.3, 0.1)):
+        cfg = SlamConfig.from_dict(
+            {"filter": {"association_pose": mode, "icp_gate_sigma_floor": list(floor)}}
+        )
+        slam = VertexSLAM(SENSOR, cfg, initial_pose=(0.0, 0.0, 0.0))
+        rng = np.random.default_rng(0)
+        edges = polygon_edges(OBJECTS[:2])
+        noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+        slam.step([0.0, 0.0, 0.0], cast(np.zeros(3), edges, PHI, *noise), PHI)
+        aligned.clear()
+        return slam.step([0.0, 0.0, 0.0], cast(np.asarray(second_pose), edges, PHI, *noise), PHI)
+
+    # looked at again from where it was mapped: every candidate passes at the prediction
+    still = two_looks("predicted_first", [0.0, 0.0, 0.0])
+    assert sum(aligned) == 0
+    updated = [d for d in still.decisions if d.outcome == "updated"]
+    assert updated and all(c[1] == "predicted" for d in updated for c in d.candidates)
+    icp = two_looks("icp", [0.0, 0.0, 0.0])
+    assert sum(aligned) > 0
+    assert {d.landmark for d in icp.decisions if d.outcome == "updated"} == {
+        d.landmark for d in updated
+    }
+    np.testing.assert_allclose(still.pose, icp.pose, atol=0.01)
+    # 0.4 m on (the odometry says "no motion"): rejected at the prediction, aligned by ICP
+    moved = two_looks("predicted_first", [0.4, 0.0, 0.0])
+    assert sum(aligned) > 0
+    reference = two_looks("icp", [0.4, 0.0, 0.0])
+    np.testing.assert_array_equal(moved.pose, reference.pose)
+    assert [d.outcome for d in moved.decisions] == [d.outcome for d in reference.decisions]
+    with pytest.raises(ValueError, match="association_pose"):
+        SlamConfig.from_dict({"filter": {"association_pose": "closest"}})

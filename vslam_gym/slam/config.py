@@ -18,6 +18,7 @@ from vslam_gym.config_utils import dataclass_from_dict
 
 LINEARIZATIONS = ("ut", "jacobian")
 PREALIGN_MODES = ("none", "odometry", "fuse")
+ASSOCIATION_POSES = ("icp", "predicted", "predicted_first")
 """``FilterConfig.prealign``: whole-scan alignment before the landmark association."""
 
 
@@ -299,7 +300,10 @@ class FilterConfig:
             thesis: the set aligned to the landmark by ICP) or ``"predicted"`` (the
             predicted pose mean, no per-landmark ICP; sensible only when the prediction
             is already good, e.g. with ``prealign``: a segment of a few beams often does
-            not constrain the ICP, which then ends tens of degrees off).
+            not constrain the ICP, which then ends tens of degrees off);
+            ``"predicted_first"``: every candidate is tested at the predicted pose first,
+            and only those the detection test rejects there are aligned by ICP (a speed
+            measure: a well-tracked pose needs no per-landmark alignment).
         candidate_max_median_distance: a candidate landmark is aligned (ICP) and tested
             only when the median distance [m] of the set's points, at the predicted
             pose, to its nearest model lines is at most this; ``inf`` (the thesis)
@@ -428,9 +432,9 @@ class FilterConfig:
                 f"FilterConfig.new_landmark must be 'thesis' or 'augment', got "
                 f"{self.new_landmark!r}"
             )
-        if self.association_pose not in ("icp", "predicted"):
+        if self.association_pose not in ASSOCIATION_POSES:
             raise ValueError(
-                "FilterConfig.association_pose must be 'icp' or 'predicted', got "
+                f"FilterConfig.association_pose must be one of {ASSOCIATION_POSES}, got "
                 f"{self.association_pose!r}"
             )
         if self.prealign not in PREALIGN_MODES:

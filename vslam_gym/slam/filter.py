@@ -579,13 +579,19 @@ class VertexSLAM:
         return _SetWork(first, last, pts, lms, geometry, np.flatnonzero(near))
 
     def _associate(
-        self, scan: Scan, work: _SetWork, results: list, lam: float
+        self,
+        scan: Scan,
+        work: _SetWork,
+        results: list,
+        lam: float,
+        known: dict[int, Any] | None = None,
     ) -> tuple[_Association | None, tuple, _Overlap | None]:
         """Maximum-likelihood landmark for a set (4.3.4-4.3.18) and the candidates tried.
 
         ``results``: the ICP alignment of the set to each of ``work.aligned``. The
         accepted candidates are tested together
-        (:func:`~vslam_gym.slam.detection.detect_many`). The third value is the
+        (:func:`~vslam_gym.slam.detection.detect_many`); ``known`` holds detections
+        already computed at the result's pose, by candidate. The third value is the
         candidate whose object lines the set lies closest to (:meth:`_overlap`; None
         when ``creation_overlap_distance`` is off or no candidate has object lines).
         """
@@ -622,18 +628,23 @@ class VertexSLAM:
             m2s[c] = m2
         best, best_score = None, -np.inf
         if tested:
-            dets = detect_many(
-                [self._detection_model(lms[c]) for c, _, _ in tested],
-                scan,
-                work.first,
-                work.last,
-                np.array([p for _, p, _ in tested]),
-                self.sensor,
-                self.config.model,
-                self._lin,
-                lam,
-                parts=[self._parts(lms[c]) for c, _, _ in tested],
-            )
+            known = known or {}
+            new = [t for t in tested if t[0] not in known]
+            if new:
+                fresh = detect_many(
+                    [self._detection_model(lms[c]) for c, _, _ in new],
+                    scan,
+                    work.first,
+                    work.last,
+                    np.array([p for _, p, _ in new]),
+                    self.sensor,
+                    self.config.model,
+                    self._lin,
+                    lam,
+                    parts=[self._parts(lms[c]) for c, _, _ in new],
+                )
+                known = {**known, **{t[0]: det for t, det in zip(new, fresh, strict=True)}}
+            dets = [known[c] for c, _, _ in tested]
             for (c, test_pose, reason), det in zip(tested, dets, strict=True):
                 lm, model = lms[c], self._model(lms[c])
                 accepted = det.accepted and self._enough_object_beams(det)
@@ -769,26 +780,14 @@ class VertexSLAM:
                 continue
             works.append((first, last, self._candidates(scan, first, last, refs, radii)))
         pairs = [(w, c) for _, _, w in works if w is not None for c in w.aligned]
-        if self.config.filter.association_pose == "predicted":
-            results = [_predicted_result(self._mu[:3], w.points.shape[0]) for w, _ in pairs]
-        else:
-            results = align_many(
-                [w.points for w, _ in pairs],
-                [self._model(w.landmarks[c]) for w, c in pairs],
-                self._mu[:3],
-                self.config.icp,
-                self.sensor.max_range,
-                self.sensor.half_fov,
-                lines=[w.geometry[c] for w, c in pairs],
-                bounds=self._icp_bounds([w.landmarks[c] for w, c in pairs]),
-            )
+        results, known = self._alignments(scan, works, pairs, lam)
         at = 0
         for first, last, work in works:
             if work is None:
                 unmatched.append((first, last, (), None))
                 continue
             assoc, tried, overlap = self._associate(
-                scan, work, results[at : at + work.aligned.size], lam
+                scan, work, results[at : at + work.aligned.size], lam, known.get(id(work))
             )
             at += work.aligned.size
             if assoc is None:
@@ -814,6 +813,59 @@ class VertexSLAM:
             )
         decisions.sort(key=lambda d: d.first)
         return decisions
+
+    def _alignments(
+        self, scan: Scan, works: list, pairs: list, lam: float
+    ) -> tuple[list[IcpResult], dict[int, dict[int, Any]]]:
+        """The pose each (set, candidate) pair is tested at (``association_pose``).
+
+        Returns the results in ``pairs`` order and, for ``"predicted_first"``, per set
+        (keyed by ``id(work)``) the detections already computed at the predicted pose of
+        the candidates that passed there.
+        """
+        pose = self._mu[:3]
+        mode = self.config.filter.association_pose
+        if mode == "predicted":
+            return [_predicted_result(pose, w.points.shape[0]) for w, _ in pairs], {}
+        results: list[IcpResult | None] = [None] * len(pairs)
+        known: dict[int, dict[int, Any]] = {}
+        if mode == "predicted_first":
+            at = 0
+            for first, last, work in works:
+                if work is None or work.aligned.size == 0:
+                    continue
+                cands = work.aligned.tolist()
+                dets = detect_many(
+                    [self._detection_model(work.landmarks[c]) for c in cands],
+                    scan,
+                    first,
+                    last,
+                    np.tile(pose, (len(cands), 1)),
+                    self.sensor,
+                    self.config.model,
+                    self._lin,
+                    lam,
+                    parts=[self._parts(work.landmarks[c]) for c in cands],
+                )
+                for k, (c, det) in enumerate(zip(cands, dets, strict=True)):
+                    if det.accepted and self._enough_object_beams(det):
+                        results[at + k] = _predicted_result(pose, work.points.shape[0])
+                        known.setdefault(id(work), {})[c] = det
+                at += len(cands)
+        todo = [i for i, r in enumerate(results) if r is None]
+        aligned = align_many(
+            [pairs[i][0].points for i in todo],
+            [self._model(pairs[i][0].landmarks[pairs[i][1]]) for i in todo],
+            pose,
+            self.config.icp,
+            self.sensor.max_range,
+            self.sensor.half_fov,
+            lines=[pairs[i][0].geometry[pairs[i][1]] for i in todo],
+            bounds=self._icp_bounds([pairs[i][0].landmarks[pairs[i][1]] for i in todo]),
+        )
+        for i, res in zip(todo, aligned, strict=True):
+            results[i] = res
+        return results, known  # type: ignore[return-value]
 
     # ------------------------------------------------------------------ map updates
 
