@@ -356,3 +356,41 @@ def test_predicted_first_aligns_only_candidates_rejected_at_the_prediction(monke
     assert [d.outcome for d in moved.decisions] == [d.outcome for d in reference.decisions]
     with pytest.raises(ValueError, match="association_pose"):
         SlamConfig.from_dict({"filter": {"association_pose": "closest"}})
+
+
+def test_motion_filter_measures_only_after_enough_motion():
+    # the circle route moves 0.157 m and turns 0.053 rad per step
+    cfg = SlamConfig.from_dict(
+        {"filter": {"measurement_min_travel": 0.3, "measurement_min_turn": 1.0}}
+    )
+    slam, beliefs, odo_err, true = run(cfg)
+    measured = np.array([b.measured for b in beliefs])
+    assert measured[0]  # the first scan always builds the map
+    assert 0.4 <= measured.mean() <= 0.6  # every second step
+    for before, b in zip(beliefs[:-1], beliefs[1:], strict=True):
+        if not b.measured:
+            assert b.decisions == () and len(b.landmarks) == len(before.landmarks)
+            # the motion update alone: the pose covariance grows
+            assert np.trace(b.pose_cov) > np.trace(before.pose_cov)
+    err = np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2]))
+    assert err < 0.5 * odo_err[-1], (err, odo_err[-1])
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+    # turning in place: the turn threshold triggers a measurement
+    turner = VertexSLAM(
+        SENSOR,
+        SlamConfig.from_dict(
+            {"filter": {"measurement_min_travel": 1.0, "measurement_min_turn": 0.2}}
+        ),
+    )
+    rng = np.random.default_rng(0)
+    edges = polygon_edges(OBJECTS)
+    noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+    flags = []
+    for k in range(1, 6):
+        pose = np.array([0.0, 0.0, 0.12 * k])
+        flags.append(turner.step([0.12, 0.0, 0.0], cast(pose, edges, PHI, *noise), PHI).measured)
+    assert flags == [True, False, True, False, True]  # 0.24 rad after two steps
+    for name in ("measurement_min_travel", "measurement_min_turn"):
+        with pytest.raises(ValueError, match=name):
+            SlamConfig.from_dict({"filter": {name: -0.1}})
+    assert SlamConfig().filter.measurement_min_travel == 0.0  # every scan by default

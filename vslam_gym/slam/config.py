@@ -370,6 +370,13 @@ class FilterConfig:
             the gate unless the alignment would have come back. 0 (the thesis) lets
             every alignment run to convergence. A speed measure: diverging alignments
             cost about a quarter of the ICP iterations in ``house``.
+        measurement_min_travel: a motion filter: the landmark measurement update (step 3
+            on) runs only once the pose mean has moved at least this far [m] ...
+        measurement_min_turn: ... or turned at least this much [rad] since the last
+            measurement update; other steps do the motion update only (the scan is not
+            used). 0 and 0 (the thesis) measure every scan. Scan-matching SLAM front
+            ends commonly process a scan only after such motion; it saves the work of
+            re-observing the same scene from almost the same pose.
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -398,6 +405,8 @@ class FilterConfig:
     creation_overlap_distance: float = 0.0
     detection_model_sigma: float = 0.0
     icp_stop_beyond_gate: float = 0.0
+    measurement_min_travel: float = 0.0
+    measurement_min_turn: float = 0.0
 
     def __post_init__(self) -> None:
         floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
@@ -413,6 +422,10 @@ class FilterConfig:
                 "FilterConfig.min_object_beam_fraction must lie in [0, 1], got "
                 f"{self.min_object_beam_fraction!r}"
             )
+        for name in ("measurement_min_travel", "measurement_min_turn"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"FilterConfig.{name} must be finite and >= 0, got {value!r}")
         if not self.icp_stop_beyond_gate >= 0.0:
             raise ValueError(
                 f"FilterConfig.icp_stop_beyond_gate must be >= 0, got {self.icp_stop_beyond_gate!r}"

@@ -224,6 +224,9 @@ class Belief:
         step_ms: wall time of the last step [ms].
         prealigned: the whole-scan matcher's result was used in the last step
             (``FilterConfig.prealign``).
+        measured: the last step ran the landmark measurement update (False when the
+            motion filter skipped it: ``FilterConfig.measurement_min_travel``; then
+            ``decisions`` is empty).
     """
 
     step: int
@@ -235,6 +238,7 @@ class Belief:
     state_dim: int
     step_ms: float
     prealigned: bool = False
+    measured: bool = False
 
 
 @dataclass
@@ -388,6 +392,8 @@ class VertexSLAM:
         self._local_map = LocalMap(self.config.matcher)
         self._matcher_pose = self._mu[:3].copy()  # "odometry": pose in the matcher's frame
         self._prealigned = False
+        self._measured = False
+        self._measured_at: np.ndarray | None = None  # pose after the last measurement update
         return self.belief
 
     @property
@@ -416,6 +422,7 @@ class VertexSLAM:
             state_dim=int(self._mu.size),
             step_ms=self._step_ms,
             prealigned=self._prealigned,
+            measured=self._measured,
         )
 
     def step(self, odometry, ranges, bearings) -> Belief:
@@ -448,13 +455,38 @@ class VertexSLAM:
             else:
                 self._motion_update(u)
                 self._prealigned = self._fuse_match(points)
-        self._decisions = tuple(self._measurement_update(scan))
-        self._refresh_models()
+        self._measured = self._moved_enough()
+        if self._measured:
+            self._decisions = tuple(self._measurement_update(scan))
+            self._refresh_models()
+            self._measured_at = self._mu[:3].copy()
+        else:
+            self._decisions = ()
         if mode == "fuse":
             self._local_map.add(points, self._mu[:3])
         self._step += 1
         self._step_ms = (time.perf_counter() - start) * 1e3
         return self.belief
+
+    def _moved_enough(self) -> bool:
+        """Whether the motion filter lets this step run the measurement update.
+
+        True on the first step, and once the pose mean has moved
+        ``measurement_min_travel`` [m] or turned ``measurement_min_turn`` [rad] since the
+        last measurement update (always, when both are 0).
+        """
+        cfg = self.config.filter
+        if self._measured_at is None or (
+            cfg.measurement_min_travel <= 0.0 and cfg.measurement_min_turn <= 0.0
+        ):
+            return True
+        d = self._mu[:3] - self._measured_at
+        travel = float(np.hypot(d[0], d[1]))
+        turn = abs(float(wrap_angle(d[2])))
+        return bool(
+            (cfg.measurement_min_travel > 0.0 and travel >= cfg.measurement_min_travel)
+            or (cfg.measurement_min_turn > 0.0 and turn >= cfg.measurement_min_turn)
+        )
 
     # ------------------------------------------------------------------ motion
 
