@@ -318,6 +318,9 @@ def test_episode_log_is_consistent(episode):
     # the only obstacle is id 0: every set is on it
     assert {d.majority_id for d in episode.decisions} == {0}
     assert {d.step for d in episode.decisions} <= set(range(1, E2E_STEPS + 1))
+    timing = episode_metrics(episode)
+    assert timing["step_ms_mean"] == pytest.approx(np.mean(episode.step_ms))
+    assert timing["step_ms_median"] == pytest.approx(np.median(episode.step_ms))
 
 
 def _same(a, b):
