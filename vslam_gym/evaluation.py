@@ -875,6 +875,7 @@ def evaluate(
     progress: bool = True,
     max_steps: int | None = None,
     print_table: bool = True,
+    overrides: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run one episode per seed and write metrics, figures and trajectories.
 
@@ -882,6 +883,8 @@ def evaluate(
         world: shipped world name or path to a TOML world file (with a route).
         seeds: ``reset`` seeds, at least one.
         preset: ``"default"`` or ``"thesis"``.
+        overrides: optional ``{"model": {...}, "filter": {...}, "icp": {...}}`` applied
+            over the preset (:meth:`SlamConfig.from_dict`), e.g. a measured option.
         out_dir: output directory (created if needed).
         progress: show a tqdm progress bar per seed (silently none without tqdm).
         max_steps: step budget per episode (None: until the route is done).
@@ -895,7 +898,7 @@ def evaluate(
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("evaluate needs at least one seed")
-    SlamConfig.preset(preset)  # fail early on an unknown preset
+    config = SlamConfig.from_dict({"preset": preset, **(overrides or {})})  # fails early
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     per_seed = []
@@ -907,15 +910,16 @@ def evaluate(
             bar.set_postfix(landmarks=len(belief.landmarks), refresh=False)
 
         try:
-            log = run_episode(world, seed, preset, max_steps, tick if bar is not None else None)
+            log = run_episode(world, seed, config, max_steps, tick if bar is not None else None)
         finally:
             if bar is not None:
                 bar.close()
-        per_seed.append(episode_metrics(log))
+        per_seed.append({**episode_metrics(log), "preset": preset})
         save_episode(log, out)
     result = {
         "world": per_seed[0]["world"],
         "preset": preset,
+        "overrides": dict(overrides or {}),
         "seeds": seeds,
         "machine": machine_description(),
         "per_seed": per_seed,
@@ -987,6 +991,8 @@ def format_table(metrics: Mapping[str, Any]) -> str:
         return "  ".join(c.rjust(w) for c, w in zip(cells, widths, strict=True))
 
     title = f"{metrics['world']} / preset {metrics['preset']} / {len(metrics['per_seed'])} seed(s)"
+    if metrics.get("overrides"):
+        title += f" / --set {json.dumps(metrics['overrides'], separators=(',', ':'))}"
     rule = "-" * len(line(header))
     return "\n".join([title, line(header), rule, *map(line, rows[:-1]), rule, line(rows[-1])])
 
@@ -1034,6 +1040,23 @@ def _seeds_argument(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(str(err)) from err
 
 
+def _overrides_argument(text: str) -> dict[str, Any]:
+    """``--set``: a JSON object of configuration sections (checked by ``SlamConfig``)."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"--set must be a JSON object: {exc}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"--set must be a JSON object, got {text!r}")
+    if "preset" in value:
+        raise argparse.ArgumentTypeError("--set takes configuration sections; use --preset")
+    try:
+        SlamConfig.from_dict(value)
+    except (TypeError, ValueError) as exc:  # UnknownKeyError is a ValueError
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return value
+
+
 def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``evaluate`` subcommand (its handler is :func:`cmd_evaluate`)."""
     parser = subparsers.add_parser(
@@ -1056,6 +1079,14 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
         default="default",
         help="estimator configuration (default %(default)s)",
     )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        type=_overrides_argument,
+        default=None,
+        metavar="JSON",
+        help='options over the preset, e.g. \'{"filter": {"measurement_min_travel": 0.1}}\'',
+    )
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument(
         "--max-steps", type=int, default=None, help="step budget per seed (default: whole route)"
@@ -1076,6 +1107,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         max_steps=args.max_steps,
         print_table=False,
+        overrides=args.overrides,
     )
     print(format_table(metrics))
     print(
