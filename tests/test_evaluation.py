@@ -283,7 +283,7 @@ def test_evaluate_parser():
     "bad, message",
     [
         (["--seeds", "3-1"], "seeds"),
-        (["--preset", "fast"], "preset"),
+        (["--preset", "quick"], "preset"),
         (["--set", "{not json"], "JSON object"),
         (["--set", "[1, 2]"], "JSON object"),
         (["--set", '{"filter": {"icp_gate": 3}}'], "icp_gate"),

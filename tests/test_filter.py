@@ -109,6 +109,13 @@ def test_config_from_dict_and_presets():
         SlamConfig.from_dict({"filter": {"min_set_beam": 6}})
     with pytest.raises(UnknownKeyError, match="preset"):
         SlamConfig.preset("thesys")
+    fast = SlamConfig.preset("fast")
+    assert fast.filter.association_pose == "predicted_first"
+    assert fast.filter.measurement_min_travel == fast.filter.measurement_min_turn == 0.2
+    # otherwise the default
+    assert fast.model == SlamConfig().model and fast.icp == SlamConfig().icp
+    for name in ("default", "thesis", "logs"):  # every scan is measured
+        assert SlamConfig.preset(name).filter.measurement_min_travel == 0.0
 
 
 # ----------------------------------------------------------------- cached map data

@@ -1075,7 +1075,7 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     )
     parser.add_argument(
         "--preset",
-        choices=("default", "thesis"),
+        choices=("default", "thesis", "fast"),
         default="default",
         help="estimator configuration (default %(default)s)",
     )

@@ -133,9 +133,27 @@ class SlamConfig:
         )
 
     @classmethod
+    def fast(cls) -> SlamConfig:
+        """The default traded for throughput (reinforcement-learning training).
+
+        ``association_pose="predicted_first"`` (per-landmark ICP only for candidates the
+        detection test rejects at the predicted pose) and a motion filter of 0.2 m /
+        0.2 rad (``measurement_min_travel``, ``measurement_min_turn``). Measured (README,
+        "Presets"): 2.5-3.5 times less CPU time per step than the default, at a larger
+        position ATE.
+        """
+        return cls(
+            filter=FilterConfig(
+                association_pose="predicted_first",
+                measurement_min_travel=0.2,
+                measurement_min_turn=0.2,
+            )
+        )
+
+    @classmethod
     def preset(cls, name: str) -> SlamConfig:
-        """``"default"``, ``"thesis"`` or ``"logs"``."""
-        presets = {"default": cls, "thesis": cls.thesis, "logs": cls.logs}
+        """``"default"``, ``"thesis"``, ``"logs"`` or ``"fast"``."""
+        presets = {"default": cls, "thesis": cls.thesis, "logs": cls.logs, "fast": cls.fast}
         check_keys([name], presets, "SlamConfig.preset")
         return presets[name]()
 
