@@ -182,6 +182,10 @@ def test_association_precision_on_a_tiny_decision_log():
     precision, associations = association_precision(log, landmark_majority_ids(log))
     assert associations == 5
     assert precision == pytest.approx(3 / 5)
+    # only the associations that updated the map: two of three correct
+    precision, updates = association_precision(log, landmark_majority_ids(log), ("updated",))
+    assert updates == 3
+    assert precision == pytest.approx(2 / 3)
 
 
 def test_association_precision_without_associations_is_nan():

@@ -498,12 +498,15 @@ def landmark_majority_ids(decisions: Iterable[DecisionRecord]) -> dict[int, int]
 
 
 def association_precision(
-    decisions: Iterable[DecisionRecord], landmark_ids: Mapping[int, int]
+    decisions: Iterable[DecisionRecord],
+    landmark_ids: Mapping[int, int],
+    outcomes: Sequence[str] = ASSOCIATION_OUTCOMES,
 ) -> tuple[float, int]:
     """Fraction of set-to-landmark associations that are correct.
 
-    An association is a decision with outcome ``"updated"`` or ``"associated"``; it is
-    correct when the set's majority obstacle id equals the landmark's
+    An association is a decision with outcome ``"updated"`` or ``"associated"`` (or
+    those in ``outcomes``: ``("updated",)`` counts only the associations that changed the
+    map); it is correct when the set's majority obstacle id equals the landmark's
     (:func:`landmark_majority_ids`).
 
     Returns:
@@ -511,7 +514,7 @@ def association_precision(
     """
     total = correct = 0
     for d in decisions:
-        if d.outcome not in ASSOCIATION_OUTCOMES:
+        if d.outcome not in outcomes:
             continue
         total += 1
         truth = landmark_ids.get(d.landmark, NO_HIT)
@@ -553,7 +556,10 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     ``collision_steps``; ``ate_rmse_m`` / ``odom_ate_rmse_m`` (position ATE RMSE [m] of
     SLAM / odometry only); ``heading_rmse_rad`` / ``odom_heading_rmse_rad`` [rad];
     ``final_error_m`` / ``odom_final_error_m`` [m]; ``nees_*`` (:func:`nees_summary`);
-    ``association_precision`` and ``associations``; ``landmarks`` (final count),
+    ``association_precision`` and ``associations``; ``update_precision`` and
+    ``updates`` (the same over the associations that updated the map: an
+    ``"associated"`` set, matched with too few beams on object lines to update, often
+    lies on another landmark's unknown lines); ``landmarks`` (final count),
     ``obstacles_mapped`` (distinct true obstacles among them), ``obstacles``,
     ``landmarks_per_obstacle`` (landmarks / obstacles mapped), ``duplicate_fraction``;
     ``step_ms_median``, ``step_ms_p95``, ``step_ms_mean`` [ms] (the mean is what a
@@ -568,6 +574,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     final_ids = {lm.id: ids.get(lm.id, NO_HIT) for lm in final.landmarks}
     mapped = len({i for i in final_ids.values() if i != NO_HIT})
     precision, associations = association_precision(log.decisions, ids)
+    update_precision, updates = association_precision(log.decisions, ids, ("updated",))
     median, p95 = timing_summary(log.step_ms)
     out: dict[str, Any] = {
         "world": log.world_name,
@@ -588,6 +595,8 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
         {
             "association_precision": precision,
             "associations": associations,
+            "update_precision": update_precision,
+            "updates": updates,
             "landmarks": len(final.landmarks),
             "obstacles_mapped": mapped,
             "obstacles": len(log.world.obstacles),
@@ -958,6 +967,7 @@ _TABLE_COLUMNS = (
     ("NEES", "nees_mean", "{:.3g}"),
     ("in band", "nees_in_band_fraction", "{:.2f}"),
     ("assoc P", "association_precision", "{:.3f}"),
+    ("upd P", "update_precision", "{:.3f}"),
     ("dup", "duplicate_fraction", "{:.2f}"),
     ("LMs", "landmarks", "{:.1f}"),
     ("ms med", "step_ms_median", "{:.1f}"),
