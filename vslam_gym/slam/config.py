@@ -18,8 +18,9 @@ from vslam_gym.config_utils import dataclass_from_dict
 
 LINEARIZATIONS = ("ut", "jacobian")
 PREALIGN_MODES = ("none", "odometry", "fuse")
-ASSOCIATION_POSES = ("icp", "predicted", "predicted_first")
 """``FilterConfig.prealign``: whole-scan alignment before the landmark association."""
+ASSOCIATION_POSES = ("icp", "predicted", "predicted_first")
+"""``FilterConfig.association_pose``: where a set is tested against a candidate."""
 
 
 @dataclass(frozen=True)
@@ -303,8 +304,9 @@ class FilterConfig:
             not constrain the ICP, which then ends tens of degrees off);
             ``"predicted_first"``: every candidate is tested at the predicted pose first,
             and only those the detection test rejects there are aligned by ICP (a speed
-            measure: a well-tracked pose needs no per-landmark alignment). Measured (as
-            ``creation_overlap_distance``): alignments per ``house`` step 25 -> 11, CPU
+            measure: a well-tracked pose needs no per-landmark alignment). Measured
+            (protocol of ``creation_overlap_distance``): alignments per ``house`` step
+            25 -> 11, CPU
             time per step 58 -> 45 ms (``small`` 22 -> 18 ms), ``house`` landmarks 157 ->
             103; ATE 0.32 / 0.14 / 0.10 / 0.22 -> 0.25 / 0.18 / 0.13 / 0.25 m, ``house``
             final error 0.18 -> 0.38 m. Not the default.
@@ -374,16 +376,16 @@ class FilterConfig:
             covariance in the detection test only (not in the state): the model's shape
             error (a corner cut by the model selection), which does not average out over
             updates the way the vertex covariances do. 0 in the thesis. Measured at
-            0.02 m (as ``creation_overlap_distance``): ATE 0.32 / 0.14 / 0.10 / 0.22 ->
-            0.23 / 0.13 / 0.12 / 0.32 m, better on two worlds, worse on ``curved`` and
-            ``house``. Not the default.
+            0.02 m (protocol of ``creation_overlap_distance``): ATE 0.32 / 0.14 / 0.10
+            / 0.22 -> 0.23 / 0.13 / 0.12 / 0.32 m, better on two worlds, worse on
+            ``curved`` and ``house``. Not the default.
         icp_stop_beyond_gate: a per-landmark ICP stops (reason ``"out_of_bound"``) after
             the first step that takes its pose beyond this many times the plausibility
             gate (``icp_max_pose_mahalanobis``, same covariance); such a result fails
             the gate unless the alignment would have come back. 0 (the thesis) lets
             every alignment run to convergence. A speed measure: diverging alignments
-            cost about a quarter of the ICP iterations in ``house``. Measured at 1 (as
-            ``creation_overlap_distance``): ICP iterations per ``house`` step 283 ->
+            cost about a quarter of the ICP iterations in ``house``. Measured at 1
+            (protocol of ``creation_overlap_distance``): ICP iterations per ``house`` step 283 ->
             115 and CPU time per step 58 -> 44 ms, but alignments that would have come
             back inside the gate are lost (``house`` landmarks 157 -> 175): ATE 0.32 /
             0.14 / 0.10 / 0.22 -> 0.26 / 0.15 / 0.09 / 0.25 m, ``house`` final error
@@ -395,8 +397,8 @@ class FilterConfig:
             used). 0 and 0 (the thesis) measure every scan. Scan-matching SLAM front
             ends commonly process a scan only after such motion; it saves the work of
             re-observing the same scene from almost the same pose. Measured at 0.1 m and
-            0.1 rad (as ``creation_overlap_distance``; the routes move about 5-10 cm a
-            step): CPU time per step 10.5 / 22 / 47 / 58 -> 6.5 / 15 / 29 / 45 ms, mean
+            0.1 rad (protocol of ``creation_overlap_distance``; the routes move about
+            5-10 cm a step): CPU time per step 10.5 / 22 / 47 / 58 -> 6.5 / 15 / 29 / 45 ms, mean
             pose NEES 117 / 612 / 279 / 4764 -> 61 / 532 / 110 / 4317, ATE 0.32 / 0.14 /
             0.10 / 0.22 -> 0.24 / 0.17 / 0.08 / 0.36 m (``house``: two seeds of five at
             0.58 and 0.77 m, final error 0.18 -> 0.63 m). Not the default.
