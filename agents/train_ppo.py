@@ -61,11 +61,20 @@ class PpoSettings:
     cnn_output_dim: int = 128
 
 
-def make_env_fn(env_id: str, seed: int, reward: str | None) -> Any:
-    """A picklable constructor of one training environment (for ``make_vec_env``)."""
+def make_env_fn(env_id: str, seed: int, reward: str | None, slam_preset: str | None = None) -> Any:
+    """A picklable constructor of one training environment (for ``make_vec_env``).
+
+    ``reward`` and ``slam_preset`` (a ``SlamConfig`` preset name) replace the
+    registration's wrapper arguments when given.
+    """
+    wrapper_kwargs = {}
+    if reward is not None:
+        wrapper_kwargs["reward"] = reward
+    if slam_preset is not None:
+        wrapper_kwargs["slam_config"] = slam_preset
 
     def make() -> gym.Env:
-        spec = env_id if reward is None else vslam_gym.explore_spec(env_id, reward=reward)
+        spec = vslam_gym.explore_spec(env_id, **wrapper_kwargs) if wrapper_kwargs else env_id
         return gym.make(spec)
 
     return make
@@ -84,6 +93,7 @@ def train(
     progress_bar: bool = True,
     subprocesses: bool = True,
     max_minutes: float | None = None,
+    slam_preset: str | None = None,
 ) -> Path:
     """Train PPO and save ``out/final_model.zip``; returns its path.
 
@@ -102,6 +112,9 @@ def train(
         subprocesses: run the environments in subprocesses (else in this process).
         max_minutes: stop training after this wall time [min] (the model trained so
             far is saved; ``train_config.json`` has ``trained_timesteps``).
+        slam_preset: the wrapper's SLAM preset (``SlamConfig.preset``), e.g. ``"fast"``
+            for about three times the throughput; None: the registration's
+            (``"default"``).
     """
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
@@ -113,7 +126,7 @@ def train(
     settings = settings or PpoSettings()
     out.mkdir(parents=True, exist_ok=True)
     vec_env = make_vec_env(
-        make_env_fn(env_id, seed, reward),
+        make_env_fn(env_id, seed, reward, slam_preset),
         n_envs=n_envs,
         seed=seed,
         monitor_dir=str(out / "monitor"),
@@ -168,6 +181,7 @@ def train(
         "n_envs": n_envs,
         "seed": seed,
         "reward": reward,
+        "slam_preset": slam_preset,
         "settings": asdict(settings),
         "vslam_gym": vslam_gym.__version__,
     }
@@ -198,6 +212,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch-size", type=int, default=PpoSettings.batch_size)
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument("--max-minutes", type=float, default=None, help="wall-time limit")
+    parser.add_argument(
+        "--slam-preset",
+        default=None,
+        choices=("default", "thesis", "fast"),
+        help="SLAM preset of the wrapper (default: the registration's, 'default')",
+    )
     args = parser.parse_args(argv)
     settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
     path = train(
@@ -212,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         tensorboard=args.tensorboard,
         progress_bar=not args.no_progress,
         max_minutes=args.max_minutes,
+        slam_preset=args.slam_preset,
     )
     config = json.loads((args.out / "train_config.json").read_text())
     print(

@@ -16,6 +16,7 @@ from vslam_gym.evaluation import (
     cmd_evaluate,
     duplicate_fraction,
     episode_metrics,
+    evaluate,
     final_position_error,
     format_table,
     heading_rmse,
@@ -181,6 +182,10 @@ def test_association_precision_on_a_tiny_decision_log():
     precision, associations = association_precision(log, landmark_majority_ids(log))
     assert associations == 5
     assert precision == pytest.approx(3 / 5)
+    # only the associations that updated the map: two of three correct
+    precision, updates = association_precision(log, landmark_majority_ids(log), ("updated",))
+    assert updates == 3
+    assert precision == pytest.approx(2 / 3)
 
 
 def test_association_precision_without_associations_is_nan():
@@ -271,14 +276,30 @@ def test_evaluate_parser():
     )
     assert (args.world, args.seeds, args.preset, args.out) == ("house", [0, 1, 2, 3], "thesis", "d")
     assert args.max_steps is None and args.no_progress is False
-    assert args.handler is cmd_evaluate
+    assert args.handler is cmd_evaluate and args.overrides is None
+    args = _parser().parse_args(
+        ["evaluate", "--world", "small", "--out", "d", "--set", '{"filter": {"prealign": "fuse"}}']
+    )
+    assert args.overrides == {"filter": {"prealign": "fuse"}}
 
 
-@pytest.mark.parametrize("bad", [["--seeds", "3-1"], ["--preset", "fast"]])
-def test_evaluate_parser_rejects(bad, capsys):
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (["--seeds", "3-1"], "seeds"),
+        (["--preset", "quick"], "preset"),
+        (["--set", "{not json"], "JSON object"),
+        (["--set", "[1, 2]"], "JSON object"),
+        (["--set", '{"filter": {"icp_gate": 3}}'], "icp_gate"),
+        (["--set", '{"preset": "thesis"}'], "--preset"),
+        (["--set", '{"filter": {"measurement_min_travel": -1}}'], "measurement_min_travel"),
+    ],
+)
+def test_evaluate_parser_rejects(bad, message, capsys):
     with pytest.raises(SystemExit):
         _parser().parse_args(["evaluate", "--world", "house", "--out", "d", *bad])
-    assert "error" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "error" in err and message in err
 
 
 def test_run_episode_rejects_a_world_without_route(tmp_path):
@@ -318,6 +339,9 @@ def test_episode_log_is_consistent(episode):
     # the only obstacle is id 0: every set is on it
     assert {d.majority_id for d in episode.decisions} == {0}
     assert {d.step for d in episode.decisions} <= set(range(1, E2E_STEPS + 1))
+    timing = episode_metrics(episode)
+    assert timing["step_ms_mean"] == pytest.approx(np.mean(episode.step_ms))
+    assert timing["step_ms_median"] == pytest.approx(np.median(episode.step_ms))
 
 
 def _same(a, b):
@@ -371,3 +395,31 @@ def test_evaluate_end_to_end_is_deterministic(episode, tmp_path, capsys):
     assert again.keys() == seed.keys()
     for key in again.keys() - set(TIMING_KEYS):
         assert _same(again[key], seed[key]), key
+
+
+def test_evaluate_applies_overrides_over_the_preset(tmp_path):
+    # a motion filter no route step reaches: only the first scan is used
+    overrides = {"filter": {"measurement_min_travel": 100.0, "measurement_min_turn": 100.0}}
+    metrics = evaluate(
+        "single_landmark",
+        [0],
+        "default",
+        tmp_path,
+        progress=False,
+        max_steps=8,
+        print_table=False,
+        overrides=overrides,
+    )
+    assert metrics["overrides"] == overrides and metrics["preset"] == "default"
+    assert metrics["per_seed"][0]["preset"] == "default"
+    first_scan_only = run_episode("single_landmark", seed=0, max_steps=1)
+    assert metrics["per_seed"][0]["landmarks"] == len(first_scan_only.final_belief.landmarks)
+    assert "--set" in format_table(metrics).splitlines()[0]
+    with pytest.raises(ValueError, match="measurement_min_travel"):
+        evaluate(
+            "single_landmark",
+            [0],
+            "default",
+            tmp_path,
+            overrides={"filter": {"measurement_min_travel": -1}},
+        )

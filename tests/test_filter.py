@@ -109,6 +109,13 @@ def test_config_from_dict_and_presets():
         SlamConfig.from_dict({"filter": {"min_set_beam": 6}})
     with pytest.raises(UnknownKeyError, match="preset"):
         SlamConfig.preset("thesys")
+    fast = SlamConfig.preset("fast")
+    assert fast.filter.association_pose == "predicted_first"
+    assert fast.filter.measurement_min_travel == fast.filter.measurement_min_turn == 0.2
+    # otherwise the default
+    assert fast.model == SlamConfig().model and fast.icp == SlamConfig().icp
+    for name in ("default", "thesis", "logs"):  # every scan is measured
+        assert SlamConfig.preset(name).filter.measurement_min_travel == 0.0
 
 
 # ----------------------------------------------------------------- cached map data
@@ -225,3 +232,172 @@ def test_min_object_beam_fraction_is_validated_and_off_in_the_thesis():
     assert thesis.icp_max_pose_mahalanobis == float("inf") and not thesis.icp_gate_fallback
     with pytest.raises(ValueError, match="min_object_beam_fraction"):
         SlamConfig.from_dict({"filter": {"min_object_beam_fraction": 1.5}})
+
+
+def _gated_config(**extra):
+    return SlamConfig.from_dict(
+        {
+            "filter": {
+                "icp_max_pose_mahalanobis": 3.0,
+                "icp_gate_sigma_floor": [0.1, 0.1, 0.05],
+                **extra,
+            }
+        }
+    )
+
+
+def test_icp_stop_beyond_gate_saves_iterations_without_changing_decisions(monkeypatch):
+    import vslam_gym.slam.filter as filter_module
+
+    results = []
+    original = filter_module.align_many
+
+    def recording(*args, **kwargs):
+        out = original(*args, **kwargs)
+        results.append(out)
+        return out
+
+    monkeypatch.setattr(filter_module, "align_many", recording)
+    runs = {}
+    for stop in (0.0, 1.0):
+        results.clear()
+        belief = _kidnapped_update(_gated_config(icp_stop_beyond_gate=stop))
+        runs[stop] = (belief, [r for batch in results for r in batch])
+    (full, full_icp), (stopped, stopped_icp) = runs[0.0], runs[1.0]
+    # 0.4 m is 4 sigma of the gate: the same candidates are gated either way ...
+    assert [(d.outcome, d.landmark) for d in stopped.decisions] == [
+        (d.outcome, d.landmark) for d in full.decisions
+    ]
+    assert len(stopped.landmarks) == len(full.landmarks)
+    np.testing.assert_array_equal(stopped.pose, full.pose)
+    # ... but the alignments that left the gate stopped there
+    assert any(r.reason == "out_of_bound" for r in stopped_icp)
+    assert sum(r.iterations for r in stopped_icp) < sum(r.iterations for r in full_icp)
+    # a 1.3 sigma correction (looser floor) stays inside the bound: nothing changes
+    loose = {"icp_gate_sigma_floor": [0.3, 0.3, 0.1]}
+    a = _kidnapped_update(_gated_config(**loose))
+    b = _kidnapped_update(_gated_config(icp_stop_beyond_gate=1.0, **loose))
+    assert "updated" in {d.outcome for d in b.decisions}
+    np.testing.assert_array_equal(a.pose, b.pose)
+    with pytest.raises(ValueError, match="icp_stop_beyond_gate"):
+        SlamConfig.from_dict({"filter": {"icp_stop_beyond_gate": -1.0}})
+
+
+def test_creation_overlap_distance_keeps_a_gated_reobservation_from_duplicating():
+    plain = _kidnapped_update(_gated_config())
+    assert "created" in {d.outcome for d in plain.decisions}
+    # the re-observation lies 0.4 m from the mapped objects at the predicted pose
+    guarded = _kidnapped_update(_gated_config(creation_overlap_distance=0.5))
+    overlapping = [d for d in guarded.decisions if d.outcome == "overlapping"]
+    assert overlapping and "created" not in {d.outcome for d in guarded.decisions}
+    assert len(guarded.landmarks) < len(plain.landmarks)
+    assert {d.landmark for d in overlapping} <= {lm.id for lm in guarded.landmarks}
+    # too small a distance changes nothing
+    tight = _kidnapped_update(_gated_config(creation_overlap_distance=0.05))
+    assert len(tight.landmarks) == len(plain.landmarks)
+    with pytest.raises(ValueError, match="creation_overlap_distance"):
+        SlamConfig.from_dict({"filter": {"creation_overlap_distance": -0.1}})
+
+
+def test_detection_model_sigma_loosens_the_detection_test_only():
+    def first_landmark(sigma):
+        slam = VertexSLAM(SENSOR, _gated_config(detection_model_sigma=sigma))
+        rng = np.random.default_rng(1)
+        noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+        edges = polygon_edges(OBJECTS[:2])
+        slam.step([0.0, 0.0, 0.0], cast(np.zeros(3), edges, PHI, *noise), PHI)
+        lm = slam._landmarks[0]
+        return slam._model(lm), slam._detection_model(lm), slam
+
+    model, plain, _ = first_landmark(0.0)
+    assert plain is model  # off: the detection test sees the state's own model
+    state_model, inflated, slam = first_landmark(0.05)
+    np.testing.assert_array_equal(state_model.cov, model.cov)  # the state is unchanged
+    np.testing.assert_array_equal(inflated.mean, model.mean)
+    np.testing.assert_allclose(inflated.cov - model.cov, 0.05**2 * np.eye(model.cov.shape[0]))
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+    with pytest.raises(ValueError, match="detection_model_sigma"):
+        SlamConfig.from_dict({"filter": {"detection_model_sigma": -0.01}})
+
+
+def test_predicted_first_aligns_only_candidates_rejected_at_the_prediction(monkeypatch):
+    import vslam_gym.slam.filter as filter_module
+
+    aligned = []
+    original = filter_module.align_many
+
+    def counting(points, models, *args, **kwargs):
+        aligned.append(len(models))
+        return original(points, models, *args, **kwargs)
+
+    monkeypatch.setattr(filter_module, "align_many", counting)
+
+    def two_looks(mode, second_pose, floor=(0.3, 0.3, 0.1)):
+        cfg = SlamConfig.from_dict(
+            {"filter": {"association_pose": mode, "icp_gate_sigma_floor": list(floor)}}
+        )
+        slam = VertexSLAM(SENSOR, cfg, initial_pose=(0.0, 0.0, 0.0))
+        rng = np.random.default_rng(0)
+        edges = polygon_edges(OBJECTS[:2])
+        noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+        slam.step([0.0, 0.0, 0.0], cast(np.zeros(3), edges, PHI, *noise), PHI)
+        aligned.clear()
+        return slam.step([0.0, 0.0, 0.0], cast(np.asarray(second_pose), edges, PHI, *noise), PHI)
+
+    # looked at again from where it was mapped: every candidate passes at the prediction
+    still = two_looks("predicted_first", [0.0, 0.0, 0.0])
+    assert sum(aligned) == 0
+    updated = [d for d in still.decisions if d.outcome == "updated"]
+    assert updated and all(c[1] == "predicted" for d in updated for c in d.candidates)
+    icp = two_looks("icp", [0.0, 0.0, 0.0])
+    assert sum(aligned) > 0
+    assert {d.landmark for d in icp.decisions if d.outcome == "updated"} == {
+        d.landmark for d in updated
+    }
+    np.testing.assert_allclose(still.pose, icp.pose, atol=0.01)
+    # 0.4 m on (the odometry says "no motion"): rejected at the prediction, aligned by ICP
+    moved = two_looks("predicted_first", [0.4, 0.0, 0.0])
+    assert sum(aligned) > 0
+    reference = two_looks("icp", [0.4, 0.0, 0.0])
+    np.testing.assert_array_equal(moved.pose, reference.pose)
+    assert [d.outcome for d in moved.decisions] == [d.outcome for d in reference.decisions]
+    with pytest.raises(ValueError, match="association_pose"):
+        SlamConfig.from_dict({"filter": {"association_pose": "closest"}})
+
+
+def test_motion_filter_measures_only_after_enough_motion():
+    # the circle route moves 0.157 m and turns 0.053 rad per step
+    cfg = SlamConfig.from_dict(
+        {"filter": {"measurement_min_travel": 0.3, "measurement_min_turn": 1.0}}
+    )
+    slam, beliefs, odo_err, true = run(cfg)
+    measured = np.array([b.measured for b in beliefs])
+    assert measured[0]  # the first scan always builds the map
+    assert 0.4 <= measured.mean() <= 0.6  # every second step
+    for before, b in zip(beliefs[:-1], beliefs[1:], strict=True):
+        if not b.measured:
+            assert b.decisions == () and len(b.landmarks) == len(before.landmarks)
+            # the motion update alone: the pose covariance grows
+            assert np.trace(b.pose_cov) > np.trace(before.pose_cov)
+    err = np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2]))
+    assert err < 0.5 * odo_err[-1], (err, odo_err[-1])
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+    # turning in place: the turn threshold triggers a measurement
+    turner = VertexSLAM(
+        SENSOR,
+        SlamConfig.from_dict(
+            {"filter": {"measurement_min_travel": 1.0, "measurement_min_turn": 0.2}}
+        ),
+    )
+    rng = np.random.default_rng(0)
+    edges = polygon_edges(OBJECTS)
+    noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+    flags = []
+    for k in range(1, 6):
+        pose = np.array([0.0, 0.0, 0.12 * k])
+        flags.append(turner.step([0.12, 0.0, 0.0], cast(pose, edges, PHI, *noise), PHI).measured)
+    assert flags == [True, False, True, False, True]  # 0.24 rad after two steps
+    for name in ("measurement_min_travel", "measurement_min_turn"):
+        with pytest.raises(ValueError, match=name):
+            SlamConfig.from_dict({"filter": {name: -0.1}})
+    assert SlamConfig().filter.measurement_min_travel == 0.0  # every scan by default

@@ -12,6 +12,7 @@ from vslam_gym.slam.creation import create_model
 from vslam_gym.slam.geometry import polar_to_cartesian
 from vslam_gym.slam.icp import (
     IcpConfig,
+    PoseBound,
     align,
     align_many,
     candidate_landmarks,
@@ -512,3 +513,41 @@ def test_cycle_returns_leaves_converging_alignments_alone():
         np.testing.assert_array_equal(watched.pose, base.pose)
     with pytest.raises(ValueError, match="cycle_returns"):
         IcpConfig(cycle_returns=-1)
+
+
+# ----------------------------------------------------------------- pose bound
+
+
+def test_pose_bound_stops_an_alignment_that_leaves_it():
+    model = model_of(SHAPES["L"])
+    prior = TRUE + OFFSETS[0]  # 0.3 m / 5 deg from the truth
+    points = set_points(scan_of(SHAPES["L"], TRUE), prior)
+    cfg = IcpConfig(point_to_line=True)
+    limits = (SENSOR.max_range, SENSOR.half_fov)
+    free = align_many(points, [model], prior, cfg, *limits)[0]
+    assert free.reason == "converged" and free.iterations > 1
+    assert np.linalg.norm(free.pose[:2] - TRUE[:2]) < 0.01
+    # 1 m / 1 rad per unit: the 0.3 m / 5 deg correction is well inside a bound of 3 ...
+    wide = PoseBound(np.eye(3), 3.0)
+    inside = align_many(points, [model], prior, cfg, *limits, bounds=[wide])[0]
+    np.testing.assert_array_equal(inside.pose, free.pose)
+    assert (inside.reason, inside.iterations) == (free.reason, free.iterations)
+    # ... and beyond a bound of 5 cm: the alignment stops after its first step
+    tight = PoseBound(np.eye(3), 0.05)
+    out = align_many(points, [model], prior, cfg, *limits, bounds=[tight])[0]
+    assert (out.reason, out.iterations, out.converged) == ("out_of_bound", 1, False)
+    d = out.pose - prior
+    assert np.linalg.norm(d) > 0.05
+    with pytest.raises(ValueError, match="bounds"):
+        align_many(points, [model, model], prior, cfg, *limits, bounds=[wide])
+
+
+def test_pose_bound_wraps_heading_and_validates():
+    bound = PoseBound(np.diag([1.0, 1.0, 1.0]), 0.1)
+    assert not bound.outside(0.0, 0.0, 2 * np.pi + 0.05)  # 0.05 rad after wrapping
+    assert bound.outside(0.0, 0.0, np.pi)
+    assert bound.outside(0.08, 0.08, 0.0)  # 0.113 > 0.1
+    with pytest.raises(ValueError, match="whitening"):
+        PoseBound(np.eye(2), 1.0)
+    with pytest.raises(ValueError, match="limit"):
+        PoseBound(np.eye(3), -1.0)

@@ -79,3 +79,22 @@ def test_command_line_with_another_reward_preset(tmp_path, capsys):
     assert (tmp_path / "final_model.zip").is_file()
     monitor = (tmp_path / "monitor" / "0.monitor.csv").read_text()
     assert monitor.startswith("#") and vslam_gym.__version__ == config["vslam_gym"]
+
+
+def test_make_env_fn_applies_the_slam_preset():
+    from agents.train_ppo import make_env_fn
+
+    env = make_env_fn("VSlam/ExploreSmall-v0", 0, None, "fast")()
+    env.reset(seed=0)
+    try:
+        slam = env.get_wrapper_attr("slam")
+        assert slam.config.filter.association_pose == "predicted_first"
+        assert slam.config.filter.measurement_min_travel == 0.2
+    finally:
+        env.close()
+    plain = make_env_fn("VSlam/ExploreSmall-v0", 0, "coverage")()
+    plain.reset(seed=0)
+    try:
+        assert plain.get_wrapper_attr("slam").config.filter.measurement_min_travel == 0.0
+    finally:
+        plain.close()

@@ -105,7 +105,7 @@ ASSOCIATION_OUTCOMES = ("updated", "associated")
 """Decision outcomes that are a set-to-landmark association."""
 MAP_OUTCOMES = ("created", "updated")
 """Decision outcomes whose set votes for the landmark's obstacle id."""
-TIMING_KEYS = ("step_ms_median", "step_ms_p95", "wall_s")
+TIMING_KEYS = ("step_ms_median", "step_ms_p95", "step_ms_mean", "wall_s")
 """Metrics that measure time (they differ between identical runs)."""
 
 ProgressCallback = Callable[[int, Belief], None]
@@ -498,12 +498,15 @@ def landmark_majority_ids(decisions: Iterable[DecisionRecord]) -> dict[int, int]
 
 
 def association_precision(
-    decisions: Iterable[DecisionRecord], landmark_ids: Mapping[int, int]
+    decisions: Iterable[DecisionRecord],
+    landmark_ids: Mapping[int, int],
+    outcomes: Sequence[str] = ASSOCIATION_OUTCOMES,
 ) -> tuple[float, int]:
     """Fraction of set-to-landmark associations that are correct.
 
-    An association is a decision with outcome ``"updated"`` or ``"associated"``; it is
-    correct when the set's majority obstacle id equals the landmark's
+    An association is a decision with outcome ``"updated"`` or ``"associated"`` (or
+    those in ``outcomes``: ``("updated",)`` counts only the associations that changed the
+    map); it is correct when the set's majority obstacle id equals the landmark's
     (:func:`landmark_majority_ids`).
 
     Returns:
@@ -511,7 +514,7 @@ def association_precision(
     """
     total = correct = 0
     for d in decisions:
-        if d.outcome not in ASSOCIATION_OUTCOMES:
+        if d.outcome not in outcomes:
             continue
         total += 1
         truth = landmark_ids.get(d.landmark, NO_HIT)
@@ -553,10 +556,14 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     ``collision_steps``; ``ate_rmse_m`` / ``odom_ate_rmse_m`` (position ATE RMSE [m] of
     SLAM / odometry only); ``heading_rmse_rad`` / ``odom_heading_rmse_rad`` [rad];
     ``final_error_m`` / ``odom_final_error_m`` [m]; ``nees_*`` (:func:`nees_summary`);
-    ``association_precision`` and ``associations``; ``landmarks`` (final count),
+    ``association_precision`` and ``associations``; ``update_precision`` and
+    ``updates`` (the same over the associations that updated the map: an
+    ``"associated"`` set, matched with too few beams on object lines to update, often
+    lies on another landmark's unknown lines); ``landmarks`` (final count),
     ``obstacles_mapped`` (distinct true obstacles among them), ``obstacles``,
     ``landmarks_per_obstacle`` (landmarks / obstacles mapped), ``duplicate_fraction``;
-    ``step_ms_median``, ``step_ms_p95`` [ms]; ``wall_s`` [s].
+    ``step_ms_median``, ``step_ms_p95``, ``step_ms_mean`` [ms] (the mean is what a
+    throughput sees when a motion filter makes most steps cheap); ``wall_s`` [s].
     """
     if log.steps == 0:
         raise ValueError("the episode has no step to evaluate")
@@ -567,6 +574,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     final_ids = {lm.id: ids.get(lm.id, NO_HIT) for lm in final.landmarks}
     mapped = len({i for i in final_ids.values() if i != NO_HIT})
     precision, associations = association_precision(log.decisions, ids)
+    update_precision, updates = association_precision(log.decisions, ids, ("updated",))
     median, p95 = timing_summary(log.step_ms)
     out: dict[str, Any] = {
         "world": log.world_name,
@@ -587,6 +595,8 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
         {
             "association_precision": precision,
             "associations": associations,
+            "update_precision": update_precision,
+            "updates": updates,
             "landmarks": len(final.landmarks),
             "obstacles_mapped": mapped,
             "obstacles": len(log.world.obstacles),
@@ -594,6 +604,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
             "duplicate_fraction": duplicate_fraction(final_ids),
             "step_ms_median": median,
             "step_ms_p95": p95,
+            "step_ms_mean": float(np.mean(log.step_ms)) if len(log.step_ms) else math.nan,
             "wall_s": log.wall_s,
         }
     )
@@ -873,6 +884,7 @@ def evaluate(
     progress: bool = True,
     max_steps: int | None = None,
     print_table: bool = True,
+    overrides: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run one episode per seed and write metrics, figures and trajectories.
 
@@ -880,6 +892,8 @@ def evaluate(
         world: shipped world name or path to a TOML world file (with a route).
         seeds: ``reset`` seeds, at least one.
         preset: ``"default"`` or ``"thesis"``.
+        overrides: optional ``{"model": {...}, "filter": {...}, "icp": {...}}`` applied
+            over the preset (:meth:`SlamConfig.from_dict`), e.g. a measured option.
         out_dir: output directory (created if needed).
         progress: show a tqdm progress bar per seed (silently none without tqdm).
         max_steps: step budget per episode (None: until the route is done).
@@ -893,7 +907,7 @@ def evaluate(
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("evaluate needs at least one seed")
-    SlamConfig.preset(preset)  # fail early on an unknown preset
+    config = SlamConfig.from_dict({"preset": preset, **(overrides or {})})  # fails early
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     per_seed = []
@@ -905,15 +919,16 @@ def evaluate(
             bar.set_postfix(landmarks=len(belief.landmarks), refresh=False)
 
         try:
-            log = run_episode(world, seed, preset, max_steps, tick if bar is not None else None)
+            log = run_episode(world, seed, config, max_steps, tick if bar is not None else None)
         finally:
             if bar is not None:
                 bar.close()
-        per_seed.append(episode_metrics(log))
+        per_seed.append({**episode_metrics(log), "preset": preset})
         save_episode(log, out)
     result = {
         "world": per_seed[0]["world"],
         "preset": preset,
+        "overrides": dict(overrides or {}),
         "seeds": seeds,
         "machine": machine_description(),
         "per_seed": per_seed,
@@ -952,10 +967,12 @@ _TABLE_COLUMNS = (
     ("NEES", "nees_mean", "{:.3g}"),
     ("in band", "nees_in_band_fraction", "{:.2f}"),
     ("assoc P", "association_precision", "{:.3f}"),
+    ("upd P", "update_precision", "{:.3f}"),
     ("dup", "duplicate_fraction", "{:.2f}"),
     ("LMs", "landmarks", "{:.1f}"),
     ("ms med", "step_ms_median", "{:.1f}"),
     ("ms p95", "step_ms_p95", "{:.1f}"),
+    ("ms mean", "step_ms_mean", "{:.1f}"),
 )
 
 
@@ -984,6 +1001,8 @@ def format_table(metrics: Mapping[str, Any]) -> str:
         return "  ".join(c.rjust(w) for c, w in zip(cells, widths, strict=True))
 
     title = f"{metrics['world']} / preset {metrics['preset']} / {len(metrics['per_seed'])} seed(s)"
+    if metrics.get("overrides"):
+        title += f" / --set {json.dumps(metrics['overrides'], separators=(',', ':'))}"
     rule = "-" * len(line(header))
     return "\n".join([title, line(header), rule, *map(line, rows[:-1]), rule, line(rows[-1])])
 
@@ -1031,6 +1050,23 @@ def _seeds_argument(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(str(err)) from err
 
 
+def _overrides_argument(text: str) -> dict[str, Any]:
+    """``--set``: a JSON object of configuration sections (checked by ``SlamConfig``)."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"--set must be a JSON object: {exc}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"--set must be a JSON object, got {text!r}")
+    if "preset" in value:
+        raise argparse.ArgumentTypeError("--set takes configuration sections; use --preset")
+    try:
+        SlamConfig.from_dict(value)
+    except (TypeError, ValueError) as exc:  # UnknownKeyError is a ValueError
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return value
+
+
 def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``evaluate`` subcommand (its handler is :func:`cmd_evaluate`)."""
     parser = subparsers.add_parser(
@@ -1049,9 +1085,17 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     )
     parser.add_argument(
         "--preset",
-        choices=("default", "thesis"),
+        choices=("default", "thesis", "fast"),
         default="default",
         help="estimator configuration (default %(default)s)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        type=_overrides_argument,
+        default=None,
+        metavar="JSON",
+        help='options over the preset, e.g. \'{"filter": {"measurement_min_travel": 0.1}}\'',
     )
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument(
@@ -1073,6 +1117,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         max_steps=args.max_steps,
         print_table=False,
+        overrides=args.overrides,
     )
     print(format_table(metrics))
     print(

@@ -19,6 +19,8 @@ from vslam_gym.config_utils import dataclass_from_dict
 LINEARIZATIONS = ("ut", "jacobian")
 PREALIGN_MODES = ("none", "odometry", "fuse")
 """``FilterConfig.prealign``: whole-scan alignment before the landmark association."""
+ASSOCIATION_POSES = ("icp", "predicted", "predicted_first")
+"""``FilterConfig.association_pose``: where a set is tested against a candidate."""
 
 
 @dataclass(frozen=True)
@@ -299,7 +301,15 @@ class FilterConfig:
             thesis: the set aligned to the landmark by ICP) or ``"predicted"`` (the
             predicted pose mean, no per-landmark ICP; sensible only when the prediction
             is already good, e.g. with ``prealign``: a segment of a few beams often does
-            not constrain the ICP, which then ends tens of degrees off).
+            not constrain the ICP, which then ends tens of degrees off);
+            ``"predicted_first"``: every candidate is tested at the predicted pose first,
+            and only those the detection test rejects there are aligned by ICP (a speed
+            measure: a well-tracked pose needs no per-landmark alignment). Measured
+            (protocol of ``creation_overlap_distance``): alignments per ``house`` step
+            25 -> 11, CPU
+            time per step 58 -> 45 ms (``small`` 22 -> 18 ms), ``house`` landmarks 157 ->
+            103; ATE 0.32 / 0.14 / 0.10 / 0.22 -> 0.25 / 0.18 / 0.13 / 0.25 m, ``house``
+            final error 0.18 -> 0.38 m. Not the default.
         candidate_max_median_distance: a candidate landmark is aligned (ICP) and tested
             only when the median distance [m] of the set's points, at the predicted
             pose, to its nearest model lines is at most this; ``inf`` (the thesis)
@@ -353,13 +363,58 @@ class FilterConfig:
             last scans placed at the filter's pose estimates, and the aligned pose is
             fused as a direct pose measurement (``H = [I, 0]``) after the motion update.
             Measured in the README ("Replaying a Carmen log").
+        creation_overlap_distance: an unmatched set is not made a new landmark when the
+            median distance [m] of its points to the object lines of an aligned candidate
+            landmark (at that candidate's ICP pose if it passed the gate, or at the
+            predicted pose) is at most this; its decision reads ``"overlapping"``. 0
+            (the thesis) creates a landmark from every unmatched detectable set, so an
+            object whose re-observation fails the detection test (a coarsely modelled
+            corner) is modelled again: a duplicate landmark. Measured at 0.1 m (seeds
+            0-4, means for ``single_landmark`` / ``small`` / ``curved`` / ``house``, with
+            ``vslam-gym evaluate --set``): landmarks 7.8 / 19 / 103 / 157 -> 4.6 / 8.6 /
+            36 / 67, duplicate fraction 0.87 / 0.79 / 0.91 / 0.78 -> 0.78 / 0.49 / 0.75
+            / 0.49, but position ATE 0.32 / 0.14 / 0.10 / 0.22 -> 0.33 / 0.19 / 0.24 /
+            0.39 m: the duplicates carry updates that the failed re-association does
+            not. Not the default.
+        detection_model_sigma: isotropic standard deviation [m] added to every vertex's
+            covariance in the detection test only (not in the state): the model's shape
+            error (a corner cut by the model selection), which does not average out over
+            updates the way the vertex covariances do. 0 in the thesis. Measured at
+            0.02 m (protocol of ``creation_overlap_distance``): ATE 0.32 / 0.14 / 0.10
+            / 0.22 -> 0.23 / 0.13 / 0.12 / 0.32 m, better on two worlds, worse on
+            ``curved`` and ``house``. Not the default.
+        icp_stop_beyond_gate: a per-landmark ICP stops (reason ``"out_of_bound"``) after
+            the first step that takes its pose beyond this many times the plausibility
+            gate (``icp_max_pose_mahalanobis``, same covariance); such a result fails
+            the gate unless the alignment would have come back. 0 (the thesis) lets
+            every alignment run to convergence. A speed measure: diverging alignments
+            cost about a quarter of the ICP iterations in ``house``. Measured at 1
+            (protocol of ``creation_overlap_distance``): ICP iterations per ``house`` step 283 ->
+            115 and CPU time per step 58 -> 44 ms, but alignments that would have come
+            back inside the gate are lost (``house`` landmarks 157 -> 175): ATE 0.32 /
+            0.14 / 0.10 / 0.22 -> 0.26 / 0.15 / 0.09 / 0.25 m, ``house`` final error
+            0.18 -> 0.57 m. Not the default.
+        measurement_min_travel: a motion filter: the landmark measurement update (step 3
+            on) runs only once the pose mean has moved at least this far [m] ...
+        measurement_min_turn: ... or turned at least this much [rad] since the last
+            measurement update; other steps do the motion update only (the scan is not
+            used). 0 and 0 (the thesis) measure every scan. Scan-matching SLAM front
+            ends commonly process a scan only after such motion; it saves the work of
+            re-observing the same scene from almost the same pose. Measured at 0.1 m and
+            0.1 rad (protocol of ``creation_overlap_distance``; the routes move about
+            5-10 cm a step): CPU time per step 10.5 / 22 / 47 / 58 -> 6.5 / 15 / 29 / 45 ms, mean
+            pose NEES 117 / 612 / 279 / 4764 -> 61 / 532 / 110 / 4317, ATE 0.32 / 0.14 /
+            0.10 / 0.22 -> 0.24 / 0.17 / 0.08 / 0.36 m (``house``: two seeds of five at
+            0.58 and 0.77 m, final error 0.18 -> 0.63 m). Not the default.
         create_beside_candidates: an unmatched set becomes a new landmark even when a
             landmark near it was aligned and tested (and failed the gate or the
             detection test); True in the thesis. False: only a set whose candidates
             were all too far (``candidate_max_median_distance``) or that had none
             creates one; a re-observation that fails its test is then not modelled
-            again as a duplicate. False in the ``logs`` preset. Measured there (first
-            300 scans, synthetic seeds 0-1 and logged odometry; True -> False): Intel
+            again as a duplicate (compare ``creation_overlap_distance``, which tests the
+            set's distance to the candidates' lines). False in the ``logs`` preset.
+            Measured there (first 300 scans, synthetic seeds 0-1 and logged odometry;
+            True -> False): Intel
             330-360 -> 50 landmarks, median step 50-95 -> 23-25 ms, position ATE 0.44
             0.35 0.58 -> 0.41 0.39 0.48 m; ACES 480-510 -> 100 landmarks, ATE 1.52 1.46
             2.46 -> 1.38 1.96 2.04 m (with ``observation_information_scale`` 0.1 as well:
@@ -389,6 +444,11 @@ class FilterConfig:
     observation_information_scale: float = 1.0
     min_object_beam_fraction: float = 0.0
     prealign: str = "none"
+    creation_overlap_distance: float = 0.0
+    detection_model_sigma: float = 0.0
+    icp_stop_beyond_gate: float = 0.0
+    measurement_min_travel: float = 0.0
+    measurement_min_turn: float = 0.0
     create_beside_candidates: bool = True
 
     def __post_init__(self) -> None:
@@ -405,14 +465,32 @@ class FilterConfig:
                 "FilterConfig.min_object_beam_fraction must lie in [0, 1], got "
                 f"{self.min_object_beam_fraction!r}"
             )
+        for name in ("measurement_min_travel", "measurement_min_turn"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"FilterConfig.{name} must be finite and >= 0, got {value!r}")
+        if not self.icp_stop_beyond_gate >= 0.0:
+            raise ValueError(
+                f"FilterConfig.icp_stop_beyond_gate must be >= 0, got {self.icp_stop_beyond_gate!r}"
+            )
+        if not self.detection_model_sigma >= 0.0:
+            raise ValueError(
+                "FilterConfig.detection_model_sigma must be >= 0 [m], got "
+                f"{self.detection_model_sigma!r}"
+            )
+        if not self.creation_overlap_distance >= 0.0:
+            raise ValueError(
+                "FilterConfig.creation_overlap_distance must be >= 0 [m], got "
+                f"{self.creation_overlap_distance!r}"
+            )
         if self.new_landmark not in ("thesis", "augment", "halved"):
             raise ValueError(
                 f"FilterConfig.new_landmark must be 'thesis' or 'augment', got "
                 f"{self.new_landmark!r}"
             )
-        if self.association_pose not in ("icp", "predicted"):
+        if self.association_pose not in ASSOCIATION_POSES:
             raise ValueError(
-                "FilterConfig.association_pose must be 'icp' or 'predicted', got "
+                f"FilterConfig.association_pose must be one of {ASSOCIATION_POSES}, got "
                 f"{self.association_pose!r}"
             )
         if self.prealign not in PREALIGN_MODES:

@@ -51,6 +51,7 @@ __all__ = [
     "IcpConfig",
     "IcpResult",
     "LineGeometry",
+    "PoseBound",
     "align",
     "align_many",
     "candidate_landmarks",
@@ -149,7 +150,8 @@ class IcpResult:
         rms: root mean square of those points' perpendicular distances to their lines
             [m], at the start of the last iteration; ``inf`` when no point was used.
         reason: why the alignment stopped: ``"converged"``, ``"max_iterations"``,
-            ``"too_few_points"``, ``"singular"`` or ``"cycle"`` (``IcpConfig.cycle_returns``).
+            ``"too_few_points"``, ``"singular"``, ``"cycle"`` (``IcpConfig.cycle_returns``)
+            or ``"out_of_bound"`` (the pose left the caller's bound, :func:`align_many`).
     """
 
     pose: np.ndarray
@@ -159,6 +161,37 @@ class IcpResult:
     n_used: int
     rms: float
     reason: str
+
+
+@dataclass(frozen=True)
+class PoseBound:
+    """An ellipsoid around the prior pose: ``||W d|| <= limit`` for an offset ``d``.
+
+    Attributes:
+        whitening: ``(3, 3)`` ``W`` (e.g. the inverse Cholesky factor of a gate
+            covariance), applied to ``d = [dx [m], dy [m], dtheta [rad]]``.
+        limit: the largest allowed ``||W d||`` (a Mahalanobis distance).
+    """
+
+    whitening: np.ndarray
+    limit: float
+
+    def __post_init__(self) -> None:
+        w = np.asarray(self.whitening, dtype=float)
+        if w.shape != (3, 3) or not np.all(np.isfinite(w)):
+            raise ValueError(f"PoseBound.whitening must be a finite (3, 3) matrix, got {w!r}")
+        if not self.limit >= 0.0:
+            raise ValueError(f"PoseBound.limit must be >= 0, got {self.limit!r}")
+        object.__setattr__(self, "_rows", tuple(tuple(float(v) for v in row) for row in w))
+
+    def outside(self, dx: float, dy: float, dtheta: float) -> bool:
+        """True when the offset (heading wrapped to ``[-pi, pi)``) is beyond the bound."""
+        dth = (dtheta + math.pi) % TWO_PI - math.pi
+        m2 = 0.0
+        for a, b, c in self._rows:  # type: ignore[attr-defined]
+            v = a * dx + b * dy + c * dth
+            m2 += v * v
+        return m2 > self.limit * self.limit
 
 
 # ------------------------------------------------------------------------ validation
@@ -466,6 +499,7 @@ def align_many(
     half_fov: float | None = None,
     *,
     lines: list[LineGeometry] | None = None,
+    bounds: list[PoseBound | None] | None = None,
 ) -> list[IcpResult]:
     """:func:`align` of one set (or one set per model) to each of several models.
 
@@ -481,6 +515,10 @@ def align_many(
         models: the landmark models (world frame).
         lines: optional :func:`line_geometry` of each model; the caller must keep them
             in step with the models' means.
+        bounds: optional per model a :class:`PoseBound`: the alignment stops (reason
+            ``"out_of_bound"``, the pose where it left) after the first step that takes
+            the pose out of it. A caller that rejects results beyond a gate saves the
+            iterations of a diverging alignment.
         (others): as :func:`align`.
 
     Returns:
@@ -501,9 +539,13 @@ def align_many(
     _check_limits(max_range, half_fov)
     if lines is None:
         lines = [_Lines(m) for m in models]
+    if bounds is None:
+        bounds = [None] * len(models)
+    elif len(bounds) != len(models):
+        raise ValueError(f"got {len(bounds)} bounds for {len(models)} models")
     return [
-        _align(q, m, g, pose0, config, max_range, half_fov)
-        for q, m, g in zip(sets, models, lines, strict=True)
+        _align(q, m, g, pose0, config, max_range, half_fov, b)
+        for q, m, g, b in zip(sets, models, lines, bounds, strict=True)
     ]
 
 
@@ -526,6 +568,7 @@ def _align(
     config: IcpConfig,
     max_range: float | None,
     half_fov: float | None,
+    bound: PoseBound | None = None,
 ) -> IcpResult:
     """:func:`align` on validated inputs (the loop is inline: it is the hot path)."""
     unknown = model.u > config.unknown_threshold
@@ -606,6 +649,9 @@ def _align(
         moved = math.hypot(cos * cx - sin * cy + tx - cx, sin * cx + cos * cy + ty - cy)
         if moved < config.tol_translation and abs(tth) < config.tol_rotation:
             reason = "converged"
+            break
+        if bound is not None and bound.outside(x[0] - x0, x[1] - y0, tfth):
+            reason = "out_of_bound"
             break
     # Report the transform angle in [-pi, pi); the pose heading is th0 + t_f,theta,
     # continuous with the prior (pose - prior is the correction).
