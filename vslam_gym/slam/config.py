@@ -375,7 +375,8 @@ class FilterConfig:
             36 / 67, duplicate fraction 0.87 / 0.79 / 0.91 / 0.78 -> 0.78 / 0.49 / 0.75
             / 0.49, but position ATE 0.32 / 0.14 / 0.10 / 0.22 -> 0.33 / 0.19 / 0.24 /
             0.39 m: the duplicates carry updates that the failed re-association does
-            not. Not the default.
+            not. Not the default (``create_beside_candidates=False``, in the ``logs``
+            preset, blocks creation beside any tested candidate, whatever the distance).
         detection_model_sigma: isotropic standard deviation [m] added to every vertex's
             covariance in the detection test only (not in the state): the model's shape
             error (a corner cut by the model selection), which does not average out over
@@ -414,10 +415,9 @@ class FilterConfig:
             again as a duplicate (compare ``creation_overlap_distance``, which tests the
             set's distance to the candidates' lines). False in the ``logs`` preset.
             Measured there (first 300 scans, synthetic seeds 0-1 and logged odometry;
-            True -> False): Intel
-            330-360 -> 50 landmarks, median step 50-95 -> 23-25 ms, position ATE 0.44
-            0.35 0.58 -> 0.41 0.39 0.48 m; ACES 480-510 -> 100 landmarks, ATE 1.52 1.46
-            2.46 -> 1.38 1.96 2.04 m (with ``observation_information_scale`` 0.1 as well:
+            True -> False): Intel 330-360 -> 50 landmarks, median step 50-95 -> 23-25
+            ms, position ATE 0.44 0.35 0.58 -> 0.41 0.39 0.48 m; ACES 480-510 -> 100
+            landmarks, ATE 1.52 1.46 2.46 -> 1.38 1.96 2.04 m (with ``observation_information_scale`` 0.1 as well:
             0.69 1.10 1.37 m).
     """
 
