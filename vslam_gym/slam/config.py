@@ -417,8 +417,8 @@ class FilterConfig:
             Measured there (first 300 scans, synthetic seeds 0-1 and logged odometry;
             True -> False): Intel 330-360 -> 50 landmarks, median step 50-95 -> 23-25
             ms, position ATE 0.44 0.35 0.58 -> 0.41 0.39 0.48 m; ACES 480-510 -> 100
-            landmarks, ATE 1.52 1.46 2.46 -> 1.38 1.96 2.04 m (with ``observation_information_scale`` 0.1 as well:
-            0.69 1.10 1.37 m).
+            landmarks, ATE 1.52 1.46 2.46 -> 1.38 1.96 2.04 m (with
+            ``observation_information_scale`` 0.1 as well: 0.69 1.10 1.37 m).
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
