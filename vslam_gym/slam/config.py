@@ -472,20 +472,10 @@ class FilterConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"FilterConfig.{name} must be finite and >= 0, got {value!r}")
-        if not self.icp_stop_beyond_gate >= 0.0:
-            raise ValueError(
-                f"FilterConfig.icp_stop_beyond_gate must be >= 0, got {self.icp_stop_beyond_gate!r}"
-            )
-        if not self.detection_model_sigma >= 0.0:
-            raise ValueError(
-                "FilterConfig.detection_model_sigma must be >= 0 [m], got "
-                f"{self.detection_model_sigma!r}"
-            )
-        if not self.creation_overlap_distance >= 0.0:
-            raise ValueError(
-                "FilterConfig.creation_overlap_distance must be >= 0 [m], got "
-                f"{self.creation_overlap_distance!r}"
-            )
+        for name in ("icp_stop_beyond_gate", "detection_model_sigma", "creation_overlap_distance"):
+            value = getattr(self, name)
+            if not value >= 0.0:  # NaN fails too
+                raise ValueError(f"FilterConfig.{name} must be >= 0, got {value!r}")
         if self.new_landmark not in ("thesis", "augment", "halved"):
             raise ValueError(
                 f"FilterConfig.new_landmark must be 'thesis' or 'augment', got "
