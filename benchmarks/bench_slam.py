@@ -4,8 +4,9 @@ For each world and preset: one episode (``vslam_gym.evaluation.run_episode``) dr
 world's route with the route follower on the true pose and runs ``VertexSLAM`` every
 step; the filter's own wall time per step (``Belief.step_ms``: motion update,
 segmentation, association, map updates, new landmarks; not the simulation) is
-summarised as median, 95th percentile and maximum, with the median of the last tenth of
-the steps (cost grows with the map) and the final landmark count.
+summarised as median, mean, 95th percentile and maximum, with the median of the last
+tenth of the steps (cost grows with the map) and the final landmark count. Under a motion
+filter (the ``fast`` preset) most steps skip the measurement update: compare the means.
 
 Targets: median <= 10 ms per step on ``house`` with the default preset. For reference,
 the thesis reported 1.8 s per step (its Python, its curved-object world of 21 steps).
@@ -15,7 +16,7 @@ printed: on a shared machine the times are only comparable at a similar load.
 
 Usage::
 
-    python benchmarks/bench_slam.py [--worlds house small] [--presets default thesis]
+    python benchmarks/bench_slam.py [--worlds house small] [--presets default thesis fast]
                                     [--seed 0] [--max-steps N]
 """
 
@@ -60,6 +61,7 @@ def bench(world: str, preset: str, seed: int, max_steps: int | None) -> dict[str
         "steps": log.steps,
         "route": "done" if log.route_done else "cut",
         "median": median,
+        "mean": float(ms.mean()),
         "p95": p95,
         "max": float(ms.max()),
         "late": float(np.median(tail)),
@@ -67,14 +69,14 @@ def bench(world: str, preset: str, seed: int, max_steps: int | None) -> dict[str
         "filter_s": float(ms.sum()) / 1e3,
         "wall_s": wall,
         "target": target,
-        "vs_thesis": THESIS_STEP_MS / median,
+        "vs_thesis": THESIS_STEP_MS / float(ms.mean()),
     }
 
 
 def format_rows(rows: list[dict[str, object]]) -> str:
     """The result table, fixed width."""
     header = (
-        "world", "preset", "steps", "route", "med ms", "p95 ms", "max ms", "late ms",
+        "world", "preset", "steps", "route", "med ms", "mean ms", "p95 ms", "max ms", "late ms",
         "LMs", "filter s", "wall s", "target", "met", "x thesis",
     )  # fmt: skip
     lines = []
@@ -84,7 +86,8 @@ def format_rows(rows: list[dict[str, object]]) -> str:
         lines.append(
             (
                 r["world"], r["preset"], str(r["steps"]), r["route"], f"{r['median']:.1f}",
-                f"{r['p95']:.1f}", f"{r['max']:.1f}", f"{r['late']:.1f}", str(r["landmarks"]),
+                f"{r['mean']:.1f}", f"{r['p95']:.1f}", f"{r['max']:.1f}", f"{r['late']:.1f}",
+                str(r["landmarks"]),
                 f"{r['filter_s']:.1f}", f"{r['wall_s']:.1f}",
                 "-" if target is None else f"<= {target:g}", met, f"{r['vs_thesis']:.0f}x",
             )
@@ -120,7 +123,7 @@ def main() -> None:
     print(f"load average after: {load_average()}")
     print(
         f"SLAM step time [ms] per step, seed {args.seed}; 'late' = median of the last "
-        f"{TAIL_FRACTION:.0%} of steps; 'x thesis' = {THESIS_STEP_MS / 1e3:g} s / median"
+        f"{TAIL_FRACTION:.0%} of steps; 'x thesis' = {THESIS_STEP_MS / 1e3:g} s / mean"
     )
     print(format_rows(rows))
 
