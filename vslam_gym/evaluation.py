@@ -891,18 +891,18 @@ def evaluate(
     Args:
         world: shipped world name or path to a TOML world file (with a route).
         seeds: ``reset`` seeds, at least one.
-        preset: ``"default"`` or ``"thesis"``.
-        overrides: optional ``{"model": {...}, "filter": {...}, "icp": {...}}`` applied
-            over the preset (:meth:`SlamConfig.from_dict`), e.g. a measured option.
+        preset: a :meth:`SlamConfig.preset` name (``"default"``, ``"thesis"``, ``"fast"``).
         out_dir: output directory (created if needed).
         progress: show a tqdm progress bar per seed (silently none without tqdm).
         max_steps: step budget per episode (None: until the route is done).
         print_table: print :func:`format_table` of the result to standard output.
+        overrides: optional ``{"model": {...}, "filter": {...}, "icp": {...}}`` applied
+            over the preset (:meth:`SlamConfig.from_dict`), e.g. a measured option.
 
     Returns:
-        The content of ``out_dir/metrics.json``: ``world``, ``preset``, ``seeds``,
-        ``machine``, ``per_seed`` (one :func:`episode_metrics` dict per seed) and ``mean``
-        (:func:`mean_metrics`). NaN metrics are written as ``null``.
+        The content of ``out_dir/metrics.json``: ``world``, ``preset``, ``overrides``,
+        ``seeds``, ``machine``, ``per_seed`` (one :func:`episode_metrics` dict per seed)
+        and ``mean`` (:func:`mean_metrics`). NaN metrics are written as ``null``.
     """
     seeds = [int(s) for s in seeds]
     if not seeds:
