@@ -680,7 +680,8 @@ class VertexSLAM:
         gate = np.isfinite(cfg.icp_max_pose_mahalanobis)
         if gate:
             gate_cov = self._gate_covariance()
-            chol_gate = np.linalg.cholesky(gate_cov)
+            # without a floor the gate covariance is the pose covariance: reuse its factor
+            chol_gate = np.linalg.cholesky(gate_cov) if any(cfg.icp_gate_sigma_floor) else chol
         tested: list[tuple[int, np.ndarray, str]] = []  # (candidate, pose to test, reason)
         m2s = {}
         for c, res in zip(work.aligned, results, strict=True):
