@@ -21,14 +21,15 @@ def factor(a, b, k):
 
 def dense_reference(mu, sigma, ref, a2, b2, k2, a3, b3, k3):
     """Joint over [x, m..., r, v] in canonical form, inverted densely."""
-    n = mu.size + (2 if ref is None else 0)
+    d = a2.shape[1]
+    n = mu.size + (d if ref is None else 0)
     nv = b2.size
     dim = n + nv
     kk, hh = np.zeros((dim, dim)), np.zeros(dim)
     prior = Canonical.from_moments(mu, sigma)
     kk[: mu.size, : mu.size] += prior.K
     hh[: mu.size] += prior.h
-    r = np.arange(n - 2, n) if ref is None else np.arange(ref, ref + 2)
+    r = np.arange(n - d, n) if ref is None else np.arange(ref, ref + d)
     v = np.arange(n, dim)
     for idx, (kf, hf) in (
         (np.r_[r, v], factor(a2, b2, k2)),
@@ -44,12 +45,15 @@ def dense_reference(mu, sigma, ref, a2, b2, k2, a3, b3, k3):
     return mean[:n], cov[:n, :n], a8, mean[v] - a8 @ mean[r], np.linalg.inv(cond_cov)
 
 
-def make_case(rng, k=3, new=False):
-    n_state = 3 + 2 * 3 + (0 if new else 2)  # pose, three other references, [r]
+def make_case(rng, k=3, new=False, d=2):
+    """A random update; ``d = 3``: landmark-frame references (a heading column in A2)."""
+    n_state = 3 + d * 3 + (0 if new else d)  # pose, three other references, [r]
     mu = rng.normal(size=n_state) * 3
     sigma = random_spd(rng, n_state, 0.01)
     nv = 2 * k
-    a2 = np.tile(np.eye(2), (k, 1))
+    a2 = np.tile(np.eye(2, d), (k, 1))
+    if d == 3:
+        a2[:, 2] = rng.normal(size=nv)
     b2 = rng.normal(size=nv)
     k2 = np.linalg.inv(random_spd(rng, nv, 0.001))
     a3 = np.tile(np.eye(2, 3), (k, 1))
@@ -64,11 +68,11 @@ def make_case(rng, k=3, new=False):
     return mu, sigma, a2, b2, k2, a3, b3, k3
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_existing_landmark_matches_dense(seed):
+@pytest.mark.parametrize("seed, d", [(0, 2), (1, 2), (2, 2), (6, 3), (7, 3)])
+def test_existing_landmark_matches_dense(seed, d):
     rng = np.random.default_rng(seed)
-    mu, sigma, a2, b2, k2, a3, b3, k3 = make_case(rng)
-    ref = mu.size - 2
+    mu, sigma, a2, b2, k2, a3, b3, k3 = make_case(rng, d=d)
+    ref = mu.size - d
     got = state_space_update(mu, sigma, ref, a2, b2, k2, a3, b3, k3)
     want = dense_reference(mu, sigma, ref, a2, b2, k2, a3, b3, k3)
     np.testing.assert_allclose(got[0], want[0], rtol=1e-8, atol=1e-9)
@@ -81,13 +85,13 @@ def test_existing_landmark_matches_dense(seed):
     assert np.all(np.diag(got[1]) <= np.diag(sigma) + 1e-15)
 
 
-@pytest.mark.parametrize("seed", [3, 4])
-def test_new_landmark_matches_dense(seed):
+@pytest.mark.parametrize("seed, d", [(3, 2), (4, 2), (8, 3)])
+def test_new_landmark_matches_dense(seed, d):
     rng = np.random.default_rng(seed)
-    mu, sigma, a2, b2, k2, a3, b3, k3 = make_case(rng, new=True)
+    mu, sigma, a2, b2, k2, a3, b3, k3 = make_case(rng, new=True, d=d)
     got = state_space_update(mu, sigma, None, a2, b2, k2, a3, b3, k3)
     want = dense_reference(mu, sigma, None, a2, b2, k2, a3, b3, k3)
-    assert got[0].size == mu.size + 2
+    assert got[0].size == mu.size + d
     np.testing.assert_allclose(got[0], want[0], rtol=1e-8, atol=1e-9)
     np.testing.assert_allclose(got[1], want[1], rtol=1e-7, atol=1e-12)
     np.testing.assert_allclose(got[2].A, want[2], rtol=1e-7, atol=1e-9)

@@ -73,10 +73,12 @@ from vslam_gym.slam.scan_matching import (
 from vslam_gym.slam.segmentation import segment_scan
 from vslam_gym.slam.state_update import (
     POSE_DIM,
+    POSE_REF_DIM,
     REF_DIM,
     LandmarkConditional,
     augment_landmark,
     pose_measurement_update,
+    rotation_columns,
     state_space_update,
 )
 from vslam_gym.slam.update import update_model, update_unknown_lines, wrap_model
@@ -262,7 +264,7 @@ class Belief:
         robot_pose: ``(3,)`` robot pose mean (through the lidar offset).
         landmarks: every landmark.
         decisions: one per measurement set of the last scan.
-        state_dim: ``3 + 2L``.
+        state_dim: ``3 + dL`` (``d`` = 2, or 3 with ``FilterConfig.reference="pose"``).
         step_ms: wall time of the last step [ms].
         prealigned: the whole-scan matcher's result was used in the last step
             (``FilterConfig.prealign``).
@@ -304,14 +306,14 @@ class _MapSnapshot:
     """Every landmark's object radius (the candidate gate) from the references, batched.
 
     ``p(v | r)`` of landmark ``l`` gives the vertex means ``v = A_l r_l + b_l``. The
-    ``A_l`` and ``b_l`` are kept padded to ``(N, 2K, 2)`` and ``(N, 2K)`` (a row is
+    ``A_l`` and ``b_l`` are kept padded to ``(N, 2K, d)`` and ``(N, 2K)`` (a row is
     replaced when that landmark's conditional changes), so that all means and radii
     (:func:`~vslam_gym.slam.icp.object_radius`) follow from the references in a few
     vectorised operations instead of a loop over the map.
     """
 
-    def __init__(self) -> None:
-        self.a = np.zeros((0, 0, REF_DIM))
+    def __init__(self, ref_dim: int = REF_DIM) -> None:
+        self.a = np.zeros((0, 0, ref_dim))
         self.b = np.zeros((0, 0))
         self.k = np.zeros(0, dtype=int)
         self.objects = np.zeros((0, 0), dtype=bool)  # vertices on an object line
@@ -324,7 +326,7 @@ class _MapSnapshot:
         k = cond.b.size // 2
         width = max(k, self.objects.shape[1])
         if n > self.k.size or width > self.objects.shape[1]:
-            a = np.zeros((n, 2 * width, REF_DIM))
+            a = np.zeros((n, 2 * width, self.a.shape[2]))
             b = np.zeros((n, 2 * width))
             objects = np.zeros((n, width), dtype=bool)
             kk = np.zeros(n, dtype=int)
@@ -350,7 +352,7 @@ class _MapSnapshot:
             self.objects[i, :k] = True
 
     def refresh(self, refs: np.ndarray) -> None:
-        """Means ``(N, K, 2)`` and object radii ``(N,)`` [m] at the references ``(N, 2)``."""
+        """Means ``(N, K, 2)`` and object radii ``(N,)`` [m] at the references ``(N, d)``."""
         means = (self.a @ refs[:, :, None])[:, :, 0] + self.b
         self.means = means.reshape(means.shape[0], -1, 2)
         dist = np.hypot(
@@ -415,6 +417,7 @@ class VertexSLAM:
         self.config = config or SlamConfig()
         self._lin = make_linearization(self.config.model)
         self._offset = np.asarray(self.sensor.lidar_offset, dtype=float)
+        self._ref_dim = POSE_REF_DIM if self.config.filter.reference == "pose" else REF_DIM
         self.reset(initial_pose)
 
     # ------------------------------------------------------------------ public API
@@ -427,7 +430,7 @@ class VertexSLAM:
         self._mu = compose(pose, self._offset)
         self._sigma = np.diag(np.asarray(self.config.filter.initial_pose_sigma) ** 2)
         self._landmarks: list[_Landmark] = []
-        self._snapshot = _MapSnapshot()
+        self._snapshot = _MapSnapshot(self._ref_dim)
         self._step = 0
         self._decisions: tuple[SetDecision, ...] = ()
         self._step_ms = 0.0
@@ -443,7 +446,7 @@ class VertexSLAM:
         """The current belief (arrays are copies)."""
         views = []
         for lm in self._landmarks:
-            r = slice(lm.ref, lm.ref + REF_DIM)
+            r = slice(lm.ref, lm.ref + REF_DIM)  # the point (a landmark frame's origin)
             views.append(
                 LandmarkView(
                     id=lm.id,
@@ -622,13 +625,13 @@ class VertexSLAM:
         return np.stack([pose[0] + r * np.cos(a), pose[1] + r * np.sin(a)], axis=1)
 
     def _refs(self) -> np.ndarray:
-        """``(L, 2)`` every landmark's reference mean [m] (a copy).
+        """``(L, d)`` every landmark's reference mean (a copy; ``d`` = 2, or 3 for frames).
 
         Landmarks are appended to the state in creation order: landmark ``i``'s reference
-        is at state index ``3 + 2 i``.
+        is at state index ``3 + d i``; its first two entries are the point [m].
         """
-        n = len(self._landmarks)
-        return self._mu[POSE_DIM : POSE_DIM + REF_DIM * n].reshape(n, REF_DIM).copy()
+        n, d = len(self._landmarks), self._ref_dim
+        return self._mu[POSE_DIM : POSE_DIM + d * n].reshape(n, d).copy()
 
     def _candidates(
         self, scan: Scan, first: int, last: int, refs: np.ndarray, radii: np.ndarray
@@ -639,7 +642,7 @@ class VertexSLAM:
         pose = self._mu[:3]
         pts = self._set_points(scan, first, last, pose)
         cand = candidate_landmarks(
-            pts.mean(axis=0), refs, radii, self.config.filter.candidate_margin
+            pts.mean(axis=0), refs[:, :REF_DIM], radii, self.config.filter.candidate_margin
         )
         if cand.size == 0:
             return None
@@ -809,7 +812,7 @@ class VertexSLAM:
         return bounds
 
     def _gate_covariance_with_reference(self, lm: _Landmark, gate_cov: np.ndarray) -> np.ndarray:
-        """``gate_cov`` plus the reference's uncertainty relative to the pose."""
+        """``gate_cov`` plus the reference point's uncertainty relative to the pose."""
         r = slice(lm.ref, lm.ref + REF_DIM)
         cov = gate_cov.copy()
         cross = self._sigma[:2, r]
@@ -964,8 +967,9 @@ class VertexSLAM:
                 finish=False,  # Algorithm 7 and wrapping: _finish_model, at the new pose
             )
             f = upd.F
-            a2, b2 = f.T @ lm.cond.A, f.T @ lm.cond.b
-            k2 = f.T @ lm.cond.K @ f
+            prior = lm.cond.relinearized(self._mu[lm.ref : lm.ref + self._ref_dim])
+            a2, b2 = f.T @ prior.A, f.T @ prior.b
+            k2 = f.T @ prior.K @ f
             mu, sigma, cond = state_space_update(
                 self._mu,
                 self._sigma,
@@ -1002,7 +1006,7 @@ class VertexSLAM:
         landmark keeps the posterior of the state-space update without them (still
         consistent).
         """
-        r = self._mu[lm.ref : lm.ref + REF_DIM]
+        r = self._mu[lm.ref : lm.ref + self._ref_dim]
         try:
             if upd.chains is not None and not lm.closed:
                 post = LandmarkModel(lm.cond.mean(r), lm.cond.covariance(), lm.u, lm.closed)
@@ -1067,17 +1071,25 @@ class VertexSLAM:
         if not self._detectable(model, fit.object_vertices):
             return None
         start, stop = fit.object_vertices
-        k = model.n_vertices
-        select = np.zeros((REF_DIM, 2 * k))
+        k, d = model.n_vertices, self._ref_dim
+        select = np.zeros((d, 2 * k))
         for i in range(start, stop):  # r = mean of the object vertices (4.3.58)
-            select[:, 2 * i : 2 * i + 2] = np.eye(2) / (stop - start)
+            select[:REF_DIM, 2 * i : 2 * i + 2] = np.eye(2) / (stop - start)
+        select_pose = None
+        if d == POSE_REF_DIM:  # a landmark frame starts at the pose heading
+            select_pose = np.zeros((d, POSE_DIM))
+            select_pose[2, 2] = 1.0
         try:
             if self.config.filter.new_landmark in ("thesis", "halved"):
                 mu_r = select @ model.mean.reshape(-1)
                 k_v = symmetrize(np.linalg.inv(model.cov))
                 if self.config.filter.new_landmark == "halved":
                     k_v = 0.5 * k_v
-                a2 = np.tile(np.eye(2), (k, 1))
+                a2 = np.zeros((2 * k, d))
+                a2[:, :REF_DIM] = np.tile(np.eye(2), (k, 1))
+                if select_pose is not None:
+                    mu_r = mu_r + select_pose @ pose
+                    a2[:, 2] = rotation_columns(model.mean, mu_r)
                 b2 = model.mean.reshape(-1) - a2 @ mu_r
                 mu, sigma, cond = state_space_update(
                     self._mu, self._sigma, None, a2, b2, k_v, fit.A_vx, fit.b_vx, k_v
@@ -1091,6 +1103,8 @@ class VertexSLAM:
                     model.cov,
                     select,
                     self.config.filter.shape_sigma,
+                    select_pose,
+                    self.config.filter.reference_heading_sigma,
                 )
             cond.covariance()  # p(v | r) must be proper before anything is committed
         except (ValueError, np.linalg.LinAlgError):  # NotPositiveDefiniteError included
@@ -1098,7 +1112,7 @@ class VertexSLAM:
         self._mu, self._sigma = mu, sigma
         lm = _Landmark(
             id=len(self._landmarks),
-            ref=mu.size - REF_DIM,
+            ref=mu.size - d,
             cond=cond,
             u=model.u.copy(),
             closed=False,
@@ -1110,7 +1124,7 @@ class VertexSLAM:
         return lm.id
 
     def _model_of(self, lm: _Landmark) -> LandmarkModel:
-        r = self._mu[lm.ref : lm.ref + REF_DIM]
+        r = self._mu[lm.ref : lm.ref + self._ref_dim]
         return LandmarkModel(lm.cond.mean(r), lm.cond.covariance(), lm.u.copy(), lm.closed)
 
     def _refresh_models(self) -> None:

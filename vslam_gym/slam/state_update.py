@@ -1,8 +1,13 @@
 """The state-space update of the vertex SLAM filter (SPEC section 10 item 3; thesis 4.3.3).
 
-The state is ``s = [x; r_0; ...; r_{L-1}]`` (lidar pose and one 2-D reference point per
-landmark) with a Gaussian belief in moment form. A landmark's vertices ``v`` hang off its
-reference through the conditional ``v = A_vr r + b_vr + n``, ``n ~ C(K_v, 0)``.
+The state is ``s = [x; r_0; ...; r_{L-1}]`` (lidar pose and one reference per landmark)
+with a Gaussian belief in moment form. A reference is the thesis's 2-D point ``(x, y)``
+[m] (:data:`REF_DIM`) or, with ``FilterConfig.reference="pose"``, a landmark frame
+``(x [m], y [m], phi [rad])`` (:data:`POSE_REF_DIM`) whose heading carries the
+landmark's orientation uncertainty and its correlation with the robot heading. A
+landmark's vertices ``v`` hang off its reference through the linear(ised) conditional
+``v = A_vr r + b_vr + n``, ``n ~ C(K_v, 0)``; every function here takes the reference
+size from the shapes of its arguments.
 
 Updating with one associated landmark multiplies three factors over ``[x; m; r; v]``
 (``m``: every other reference): ``Phi1`` the current belief, ``Phi2 = p(v | r)`` in the
@@ -12,7 +17,8 @@ new vertex space (``A2 = F^T A_vr``, ``b2 = F^T b_vr``, ``K2 = F^T K_v F``) and
 
 - ``Phi5 = p(x, m, r)``: ``v`` marginalised out. ``Phi2 Phi3`` with ``v`` marginalised is
   a factor ``C(Lambda, eta)`` on ``(x, r)`` only, so the belief is updated in moment form
-  by a rank-5 Woodbury correction, ``O((3 + 2L)^2)``, never inverting the full state.
+  by a rank-5 Woodbury correction (rank 6 with a landmark frame), ``O((3 + 2L)^2)``,
+  never inverting the full state.
 - ``Phi8 = p(v | r)`` (``K8``, ``A8``, ``b8``): from the local joint over ``(x, r, v)`` of
   the prior marginal ``p(x, r)`` (``m`` marginalised) times ``Phi2 Phi3``, with ``x``
   marginalised. This equals the thesis's closed forms (4.3.39-4.3.53, SPEC section 10).
@@ -33,6 +39,19 @@ from vslam_gym.slam.geometry import wrap_angle
 
 POSE_DIM = 3
 REF_DIM = 2
+"""Size of the thesis's reference point ``(x, y)``."""
+POSE_REF_DIM = 3
+"""Size of a landmark-frame reference ``(x, y, phi)``."""
+
+
+def rotation_columns(vertices: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """``(2k,)``: derivative of the vertices ``(k, 2)`` [m] under a rotation about ``centre``.
+
+    ``d v_i / d phi = perp(v_i - centre) = (-(y_i - c_y), x_i - c_x)`` [m/rad]: the column of
+    ``A_vr`` that belongs to a landmark frame's heading.
+    """
+    d = np.asarray(vertices, dtype=float).reshape(-1, 2) - np.asarray(centre, dtype=float)[:2]
+    return np.stack([-d[:, 1], d[:, 0]], axis=1).reshape(-1)
 
 
 def pose_measurement_update(
@@ -61,10 +80,11 @@ def pose_measurement_update(
 
 @dataclass
 class LandmarkConditional:
-    """``p(v | r) = N(A r + b, K^-1)``: vertices [m] given the reference [m], world frame.
+    """``p(v | r) = N(A r + b, K^-1)``: vertices [m] given the reference, world frame.
 
     Attributes:
-        A: ``(2k, 2)``.
+        A: ``(2k, d)``, ``d`` the reference size (2: a point; 3: a landmark frame, whose
+            last column is linearised at the last :meth:`relinearized`).
         b: ``(2k,)``.
         K: ``(2k, 2k)`` information matrix (positive definite).
     """
@@ -77,6 +97,22 @@ class LandmarkConditional:
     def mean(self, r: np.ndarray) -> np.ndarray:
         """Vertex means ``(k, 2)`` for reference ``r``."""
         return (self.A @ r + self.b).reshape(-1, 2)
+
+    def relinearized(self, r: np.ndarray) -> LandmarkConditional:
+        """The conditional re-linearised at the reference ``r`` (landmark frames only).
+
+        The heading column of ``A`` becomes the exact rotation derivative at the current
+        vertex means (:func:`rotation_columns`) and ``b`` keeps the means at ``r``, so the
+        linear model stays a rigid rotation near ``r`` however far the heading has moved
+        since the column was last set. A point reference is returned unchanged.
+        """
+        if self.A.shape[1] != POSE_REF_DIM:
+            return self
+        r = np.asarray(r, dtype=float)
+        mean = self.A @ r + self.b
+        a = self.A.copy()
+        a[:, 2] = rotation_columns(mean, r)
+        return LandmarkConditional(A=a, b=mean - a @ r, K=self.K, _cov=self._cov)
 
     def covariance(self) -> np.ndarray:
         """``Sigma_v = K^-1`` ``(2k, 2k)`` (computed once; treat it as read-only)."""
@@ -94,12 +130,13 @@ class LandmarkConditional:
         Vertex ``i`` is old vertex ``source[i]`` (the others are marginalised out) or,
         where ``source[i] == -1``, a new vertex independent of all others, with mean
         ``means[i]`` [m] and covariance ``covs[i]`` ``(2, 2)``, rigidly attached to the
-        reference (``A = I``, ``b = mean - r``).
+        reference (``A = I`` for a point; ``[I, rotation column]`` for a landmark frame;
+        ``b = mean - A r``).
         """
         source = np.asarray(source, dtype=int)
         cov = self.covariance()
         k = source.size
-        a = np.zeros((2 * k, REF_DIM))
+        a = np.zeros((2 * k, self.A.shape[1]))
         b = np.zeros(2 * k)
         big = np.zeros((2 * k, 2 * k))
         old = np.flatnonzero(source >= 0)
@@ -111,8 +148,10 @@ class LandmarkConditional:
             big[np.ix_(rows_new, rows_new)] = cov[np.ix_(rows_old, rows_old)]
         for i in np.flatnonzero(source < 0):
             sl = slice(2 * i, 2 * i + 2)
-            a[sl] = np.eye(2)
-            b[sl] = means[i] - r
+            a[sl, :2] = np.eye(2)
+            if a.shape[1] == POSE_REF_DIM:
+                a[sl, 2] = rotation_columns(means[i], r)
+            b[sl] = means[i] - a[sl] @ r
             big[sl, sl] = covs[i]
         return LandmarkConditional(A=a, b=b, K=symmetrize(np.linalg.inv(symmetrize(big))))
 
@@ -147,12 +186,12 @@ def observation_factor(
     b3: np.ndarray,
     k3: np.ndarray,
 ) -> Canonical:
-    """``Phi2 Phi3`` in canonical form over ``z = (x (3), r (2), v (2k))``."""
-    nv = b2.size
-    dim = POSE_DIM + REF_DIM + nv
+    """``Phi2 Phi3`` in canonical form over ``z = (x (3), r (d), v (2k))``."""
+    nv, d = b2.size, a2.shape[1]
+    dim = POSE_DIM + d + nv
     kk, hh = np.zeros((dim, dim)), np.zeros(dim)
-    rv = np.r_[POSE_DIM : POSE_DIM + REF_DIM, POSE_DIM + REF_DIM : dim]
-    xv = np.r_[0:POSE_DIM, POSE_DIM + REF_DIM : dim]
+    rv = np.r_[POSE_DIM : POSE_DIM + d, POSE_DIM + d : dim]
+    xv = np.r_[0:POSE_DIM, POSE_DIM + d : dim]
     for idx, (kf, hf) in ((rv, _linear_factor(a2, b2, k2)), (xv, _linear_factor(a3, b3, k3))):
         kk[np.ix_(idx, idx)] += kf
         hh[idx] += hf
@@ -167,55 +206,63 @@ def augment_landmark(
     cov3: np.ndarray,
     select: np.ndarray,
     shape_sigma: float,
+    select_pose: np.ndarray | None = None,
+    heading_sigma: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, LandmarkConditional]:
     """Add a new landmark by augmentation: no information about the pose is created.
 
     The vertices seen from the pose, ``v = A3 x + b3 + n``, ``n ~ N(0, cov3)``, define the
-    reference ``r = S v`` (``S = select``, e.g. the mean of the object vertices). The
-    state gains ``r`` with its exact moments (``r`` correlates with the pose and, through
-    it, with the map), and the landmark keeps ``p(v | r)`` with ``x`` and ``m``
-    marginalised. That conditional is singular along ``S v = r`` (an identity, not a
+    reference ``r = S v + S_x x + e`` (``S = select``, e.g. the mean of the object vertices;
+    ``S_x = select_pose``, e.g. the pose heading as a landmark frame's heading, with
+    ``e ~ N(0, heading_sigma^2)`` [rad] on that row so that the state stays positive
+    definite). The state gains ``r`` with its exact moments (``r`` correlates with the pose
+    and, through it, with the map), and the landmark keeps ``p(v | r)`` with ``x`` and
+    ``m`` marginalised. That conditional is singular along ``S v = r`` (an identity, not a
     measurement); ``shape_sigma`` [m] of isotropic spread is added to hold it in
     information form.
 
     The thesis instead multiplies ``Phi2`` (``A_vr = [I; ...; I]``, ``K2 = Sigma_v^-1``)
     with ``Phi3`` (``K3 = Sigma_v^-1``) in :func:`state_space_update`, which uses the same
-    scan twice and gives the pose heading information it does not have.
+    scan twice and, with a point reference, gives the pose heading information it does
+    not have.
 
     Returns:
         ``(mu', Sigma', p(v | r))`` with ``r`` appended to the state.
     """
-    n = mu.size
+    n, d = mu.size, select.shape[0]
+    s_x = np.zeros((d, POSE_DIM)) if select_pose is None else np.asarray(select_pose, float)
+    extra = np.diag(np.where(np.any(s_x != 0.0, axis=1), heading_sigma**2, 0.0))
     s_xx = sigma[:3, :3]
-    sigma_vx_all = a3 @ sigma[:3, :]  # cov(v, state)
-    sigma_vv = a3 @ s_xx @ a3.T + cov3
+    t = select @ a3 + s_x  # r = T x + S b3 + S n + e
     mu_v = a3 @ mu[:3] + b3
-    mu_r = select @ mu_v
-    cross = select @ sigma_vx_all  # cov(r, state)
-    s_rr = select @ sigma_vv @ select.T
+    mu_r = select @ mu_v + s_x @ mu[:3]
+    cross = t @ sigma[:3, :]  # cov(r, state)
+    noise_rr = select @ cov3 @ select.T + extra
+    s_rr = t @ s_xx @ t.T + noise_rr
     mu_new = np.concatenate([mu, mu_r])
-    sigma_new = np.zeros((n + REF_DIM, n + REF_DIM))
+    sigma_new = np.zeros((n + d, n + d))
     sigma_new[:n, :n] = sigma
     sigma_new[n:, :n] = cross
     sigma_new[:n, n:] = cross.T
     sigma_new[n:, n:] = symmetrize(s_rr)
-    s_vr = sigma_vv @ select.T
+    sigma_vv = a3 @ s_xx @ a3.T + cov3
+    s_vr = a3 @ s_xx @ t.T + cov3 @ select.T
     gain = np.linalg.solve(s_rr, s_vr.T).T
     cond_cov = symmetrize(sigma_vv - gain @ s_vr.T) + shape_sigma**2 * np.eye(b3.size)
     k = symmetrize(np.linalg.inv(cond_cov))
     conditional = LandmarkConditional(A=gain, b=mu_v - gain @ mu_r, K=k)
     # [Sigma, cross^T; cross, s_rr] is positive definite when Sigma is and the Schur
-    # complement s_rr - cross Sigma^-1 cross^T = S cov3 S^T is (no O(n^3) check).
-    cholesky(select @ cov3 @ select.T, "state covariance after adding a landmark")
+    # complement s_rr - cross Sigma^-1 cross^T = S cov3 S^T + e is (no O(n^3) check).
+    cholesky(noise_rr, "state covariance after adding a landmark")
     return mu_new, sigma_new, conditional
 
 
-def _conditional_v_given_r(local: Canonical) -> LandmarkConditional:
-    """``p(v | r)`` from a canonical form over ``(x, r, v)`` (``x`` marginalised)."""
+def _conditional_v_given_r(local: Canonical, d: int) -> LandmarkConditional:
+    """``p(v | r)`` from a canonical form over ``(x, r (d), v)`` (``x`` marginalised)."""
     dim = local.dim
     keep = np.arange(POSE_DIM, dim)
     m = local.marginalize(keep)
-    r, v = np.arange(REF_DIM), np.arange(REF_DIM, m.dim)
+    r, v = np.arange(d), np.arange(d, m.dim)
     k8 = m.K[np.ix_(v, v)]
     chol = (np.linalg.cholesky(k8), True)
     a8 = -scipy.linalg.cho_solve(chol, m.K[np.ix_(v, r)])
@@ -257,18 +304,18 @@ def state_space_update(
         sigma: ``(n, n)`` state covariance.
         ref: index of the landmark's reference ``r`` in the state, or ``None`` for a new
             landmark (``r`` has no prior information and is appended to the state).
-        a2, b2, k2: ``Phi2 = p(v | r)`` in the new vertex space (``(2k, 2)``, ``(2k,)``,
-            ``(2k, 2k)``).
+        a2, b2, k2: ``Phi2 = p(v | r)`` in the new vertex space (``(2k, d)``, ``(2k,)``,
+            ``(2k, 2k)``; ``d`` the reference size, 2 or 3).
         a3, b3, k3: ``Phi3 = p(v | x, z)`` (``(2k, 3)``, ``(2k,)``, ``(2k, 2k)``); ``k3``
             may be singular (unobserved vertices carry no information).
 
     Returns:
-        ``(mu', Sigma', p(v | r))``; the state grows by 2 for a new landmark.
+        ``(mu', Sigma', p(v | r))``; the state grows by ``d`` for a new landmark.
 
     Raises:
         NotPositiveDefiniteError: ``k2 + k3`` or the result is not positive definite.
 
-    The result is checked on its pose and reference block only (a ``5 x 5`` Cholesky
+    The result is checked on its pose and reference block only (a ``5 x 5``, or ``6 x 6``, Cholesky
     instead of one of the whole state, which costs ``O(n^3)`` and runs multi-threaded
     BLAS on large maps): for a positive definite prior ``Sigma`` and the positive
     semi-definite factor ``C(Lambda, eta)`` on the variables ``s``, the Woodbury result
@@ -278,25 +325,26 @@ def state_space_update(
     appends ``r = C x + c + e`` with ``e ~ N(0, Lambda_rr^-1)``, which is positive
     definite when the updated pose block is.
     """
+    d = a2.shape[1]
     phi23 = observation_factor(a2, b2, k2, a3, b3, k3)
-    xr = np.arange(POSE_DIM + REF_DIM)
+    xr = np.arange(POSE_DIM + d)
     factor = phi23.marginalize(xr)  # v out: a factor on (x, r)
     pose = np.arange(POSE_DIM)
     if ref is None:
-        prior_k = np.zeros((POSE_DIM + REF_DIM,) * 2)
-        prior_h = np.zeros(POSE_DIM + REF_DIM)
+        prior_k = np.zeros((POSE_DIM + d,) * 2)
+        prior_h = np.zeros(POSE_DIM + d)
         prior_k[:3, :3] = np.linalg.inv(sigma[:3, :3])
         prior_h[:3] = prior_k[:3, :3] @ mu[:3]
     else:
-        s = np.r_[pose, ref : ref + REF_DIM]
+        s = np.r_[pose, ref : ref + d]
         prior = Canonical.from_moments(mu[s], sigma[np.ix_(s, s)])
         prior_k, prior_h = prior.K, prior.h
     local = phi23 + Canonical(prior_k, prior_h).extend(b2.size)
-    conditional = _conditional_v_given_r(local)
+    conditional = _conditional_v_given_r(local, d)
 
     lam, eta = factor.K, factor.h
     if ref is not None:
-        local_idx = np.r_[pose, ref : ref + REF_DIM]
+        local_idx = np.r_[pose, ref : ref + d]
         mu_new, sigma_new = _woodbury(mu, sigma, local_idx, lam, eta)
         cholesky(
             sigma_new[np.ix_(local_idx, local_idx)], "state covariance after the landmark update"
@@ -306,13 +354,13 @@ def state_space_update(
         chol = (np.linalg.cholesky(lam_rr), True)
         c_mat = -scipy.linalg.cho_solve(chol, lam[3:, :3])  # r | x = C x + c + e
         c_vec = scipy.linalg.cho_solve(chol, eta[3:])
-        e_cov = scipy.linalg.cho_solve(chol, np.eye(REF_DIM))
+        e_cov = scipy.linalg.cho_solve(chol, np.eye(d))
         lam_x = lam[:3, :3] + lam[:3, 3:] @ c_mat
         eta_x = eta[:3] - lam[:3, 3:] @ c_vec
         mu_x, sigma_x = _woodbury(mu, sigma, pose, symmetrize(lam_x), eta_x)
         n = mu.size
         mu_new = np.concatenate([mu_x, c_mat @ mu_x[:3] + c_vec])
-        sigma_new = np.zeros((n + REF_DIM, n + REF_DIM))
+        sigma_new = np.zeros((n + d, n + d))
         sigma_new[:n, :n] = sigma_x
         cross = c_mat @ sigma_x[:3, :]
         sigma_new[n:, :n] = cross
