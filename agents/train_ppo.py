@@ -14,6 +14,10 @@ Writes into ``--out``: ``final_model.zip`` (``PPO.load`` reads it), checkpoints
 environment), ``train_config.json``; TensorBoard logs with ``--tensorboard DIR`` (needs
 ``pip install "vslam-gym[tensorboard]"``).
 
+With ``--imitate AGENT`` the policy is first fitted to ``--imitation-steps`` steps of a
+scripted agent (behaviour cloning, ``agents/imitation.py``; saved as ``bc_model.zip``),
+then trained by PPO; the wall-time limit covers both.
+
     python agents/train_ppo.py --env VSlam/Explore-v0 --timesteps 50000 --out runs/ppo
 """
 
@@ -22,14 +26,18 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
+if __package__ in (None, ""):  # run as a script: make the repository root importable
+    sys.path.append(str(Path(__file__).resolve().parent.parent))
 
-import vslam_gym
+import gymnasium as gym  # noqa: E402
+
+import vslam_gym  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -94,6 +102,9 @@ def train(
     subprocesses: bool = True,
     max_minutes: float | None = None,
     slam_preset: str | None = None,
+    imitate: str | None = None,
+    imitation_steps: int = 12_000,
+    imitation_epochs: int = 10,
 ) -> Path:
     """Train PPO and save ``out/final_model.zip``; returns its path.
 
@@ -115,6 +126,11 @@ def train(
         slam_preset: the wrapper's SLAM preset (``SlamConfig.preset``), e.g. ``"fast"``
             for about three times the throughput; None: the registration's
             (``"default"``).
+        imitate: a scripted agent name: fit the policy to its demonstrations
+            (:mod:`agents.imitation`) before PPO; ``out/bc_model.zip`` keeps the cloned
+            policy. None: PPO from scratch.
+        imitation_steps: demonstration steps (over ``n_envs`` worker processes).
+        imitation_epochs: behaviour-cloning passes over the demonstrations.
     """
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
@@ -125,6 +141,29 @@ def train(
         raise SystemExit('--tensorboard needs TensorBoard: pip install "vslam-gym[tensorboard]"')
     settings = settings or PpoSettings()
     out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    demos = None
+    if imitate is not None:
+        from agents.imitation import collect_demonstrations
+        from agents.scripted import SCRIPTED_AGENTS
+
+        if imitate not in SCRIPTED_AGENTS:
+            raise ValueError(f"--imitate must be one of {sorted(SCRIPTED_AGENTS)}, got {imitate!r}")
+
+        wrapper_kwargs: dict[str, Any] = {}
+        if reward is not None:
+            wrapper_kwargs["reward"] = reward
+        if slam_preset is not None:
+            wrapper_kwargs["slam_config"] = slam_preset
+        demos = collect_demonstrations(
+            env_id,
+            imitate,
+            imitation_steps,
+            workers=n_envs if subprocesses else 1,
+            wrapper_kwargs=wrapper_kwargs,
+            gamma=settings.gamma,
+        )
+        demo_s = time.perf_counter() - start
     vec_env = make_vec_env(
         make_env_fn(env_id, seed, reward, slam_preset),
         n_envs=n_envs,
@@ -164,9 +203,26 @@ def train(
         def _on_step(self) -> bool:
             return time.perf_counter() < self.deadline
 
+    config: dict[str, Any] = {}
+    if demos is not None:
+        from agents.imitation import behaviour_clone
+
+        tick = time.perf_counter()
+        losses = behaviour_clone(model, demos, epochs=imitation_epochs, seed=seed)
+        model.save(out / "bc_model.zip")
+        config["imitation"] = {
+            "agent": imitate,
+            "steps": len(demos),
+            "episodes": demos.episodes,
+            "epochs": imitation_epochs,
+            "losses": losses,
+            "collect_s": demo_s,
+            "clone_s": time.perf_counter() - tick,
+        }
+        del demos
     callbacks: list[BaseCallback] = []
     if max_minutes is not None:
-        callbacks.append(WallClockLimit(max_minutes * 60.0))
+        callbacks.append(WallClockLimit(max_minutes * 60.0 - (time.perf_counter() - start)))
     if checkpoint_every > 0:
         callbacks.append(
             CheckpointCallback(
@@ -176,6 +232,7 @@ def train(
             )
         )
     config = {
+        **config,
         "env_id": env_id,
         "timesteps": timesteps,
         "n_envs": n_envs,
@@ -185,11 +242,11 @@ def train(
         "settings": asdict(settings),
         "vslam_gym": vslam_gym.__version__,
     }
-    start = time.perf_counter()
+    learn_start = time.perf_counter()
     model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=progress_bar)
-    config["wall_s"] = time.perf_counter() - start
+    config["wall_s"] = time.perf_counter() - start  # imitation included
     config["trained_timesteps"] = int(model.num_timesteps)
-    config["steps_per_s"] = model.num_timesteps / config["wall_s"]
+    config["steps_per_s"] = model.num_timesteps / (time.perf_counter() - learn_start)
     path = out / "final_model.zip"
     model.save(path)
     (out / "train_config.json").write_text(json.dumps(config, indent=2))
@@ -218,6 +275,13 @@ def main(argv: list[str] | None = None) -> int:
         choices=("default", "thesis", "fast"),
         help="SLAM preset of the wrapper (default: the registration's, 'default')",
     )
+    parser.add_argument(
+        "--imitate",
+        default=None,
+        help="scripted agent to clone before PPO (e.g. frontier; default: none)",
+    )
+    parser.add_argument("--imitation-steps", type=int, default=12_000, help="demo steps")
+    parser.add_argument("--imitation-epochs", type=int, default=10, help="cloning epochs")
     args = parser.parse_args(argv)
     settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
     path = train(
@@ -233,6 +297,9 @@ def main(argv: list[str] | None = None) -> int:
         progress_bar=not args.no_progress,
         max_minutes=args.max_minutes,
         slam_preset=args.slam_preset,
+        imitate=args.imitate,
+        imitation_steps=args.imitation_steps,
+        imitation_epochs=args.imitation_epochs,
     )
     config = json.loads((args.out / "train_config.json").read_text())
     print(

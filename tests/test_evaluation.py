@@ -24,6 +24,7 @@ from vslam_gym.evaluation import (
     majority_id,
     mean_nees_interval,
     nees_summary,
+    odometry_covariances,
     parse_seeds,
     pose_nees,
     position_ate_rmse,
@@ -32,6 +33,7 @@ from vslam_gym.evaluation import (
     yaw_quaternion,
 )
 from vslam_gym.sim.world_file import load_world, world_to_toml
+from vslam_gym.slam.filter import SlamConfig
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 REQUIRED_KEYS = {
@@ -423,3 +425,38 @@ def test_evaluate_applies_overrides_over_the_preset(tmp_path):
             tmp_path,
             overrides={"filter": {"measurement_min_travel": -1}},
         )
+
+
+def test_odometry_covariance_matches_monte_carlo_dead_reckoning():
+    """The motion model alone is consistent: its propagated covariance is the spread of
+    sampled dead reckoning along the same path (so odom NEES near 3)."""
+    from vslam_gym.slam.motion import odometry_noise, predict_pose
+
+    config = SlamConfig()
+    u = np.array([0.02, 0.1, 0.02])
+    true = [np.zeros(3)]
+    for _ in range(60):
+        true.append(predict_pose(true[-1], u))
+    true = np.array(true)
+    covs = odometry_covariances(true, config)
+    assert covs.shape == (61, 3, 3)
+    assert np.all(np.linalg.eigvalsh(covs) > 0)
+    sd = np.sqrt(
+        np.diag(
+            odometry_noise(u, config.filter.odometry_alphas, config.filter.odometry_sigma_floor)
+        )
+    )
+    rng = np.random.default_rng(0)
+    finals = []
+    for _ in range(3000):
+        pose = np.zeros(3)
+        for _ in range(60):
+            pose = predict_pose(pose, u + rng.normal(0.0, sd))
+        finals.append(pose)
+    finals = np.array(finals)
+    empirical = np.cov(finals.T)
+    np.testing.assert_allclose(np.diag(empirical), np.diag(covs[-1]), rtol=0.15)
+    nees = pose_nees(
+        finals, np.repeat(covs[-1][None], len(finals), axis=0), np.tile(true[-1], (len(finals), 1))
+    )
+    assert 2.7 < nees.mean() < 3.4

@@ -48,6 +48,7 @@ from scipy.stats import chi2
 from vslam_gym.slam.config import SensorConfig
 from vslam_gym.slam.filter import Belief, SlamConfig, VertexSLAM
 from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.motion import increments_between, motion_update, odometry_noise
 
 __all__ = [
     "ASSOCIATION_OUTCOMES",
@@ -403,6 +404,30 @@ def pose_nees(estimated: np.ndarray, covariances: np.ndarray, true: np.ndarray) 
     return out
 
 
+def odometry_covariances(odometry_poses: np.ndarray, config: SlamConfig) -> np.ndarray:
+    """``(N, 3, 3)`` covariance of dead reckoning along ``odometry_poses`` ``(N, 3)``.
+
+    The filter's own motion model (``FilterConfig.odometry_alphas``, the standard
+    deviation floor, the initial pose sigma) applied to the increments between
+    successive odometry poses, without any measurement: the NEES of the odometry-only
+    trajectory against it tells whether the motion model alone is consistent, so that
+    an overconfident SLAM covariance can be put down to the measurement updates.
+    """
+    poses = _poses("odometry_poses", odometry_poses, 3)
+    cfg = config.filter
+    floor = np.asarray(cfg.odometry_sigma_floor, dtype=float)
+    sigma = np.diag(np.asarray(cfg.initial_pose_sigma, dtype=float) ** 2)
+    out = np.empty((poses.shape[0], 3, 3))
+    out[0] = sigma
+    for t in range(1, poses.shape[0]):
+        u = increments_between(poses[t - 1], poses[t])
+        _, sigma = motion_update(
+            poses[t - 1], sigma, u, odometry_noise(u, cfg.odometry_alphas, floor)
+        )
+        out[t] = sigma
+    return out
+
+
 def chi2_interval(dof: float, confidence: float = CONFIDENCE) -> tuple[float, float]:
     """Two-sided interval of a chi-square variable holding ``confidence`` of its mass.
 
@@ -560,6 +585,8 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     ``collision_steps``; ``ate_rmse_m`` / ``odom_ate_rmse_m`` (position ATE RMSE [m] of
     SLAM / odometry only); ``heading_rmse_rad`` / ``odom_heading_rmse_rad`` [rad];
     ``final_error_m`` / ``odom_final_error_m`` [m]; ``nees_*`` (:func:`nees_summary`);
+    ``odom_nees_mean`` and ``odom_nees_in_band_fraction`` (the same for dead reckoning
+    with the filter's motion model, :func:`odometry_covariances`);
     ``association_precision`` and ``associations``; ``update_precision`` and
     ``updates`` (the same over the associations that updated the map: an
     ``"associated"`` set, matched with too few beams on object lines to update, often
@@ -595,6 +622,11 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
         "odom_final_error_m": final_position_error(odom, true),
     }
     out.update(nees_summary(nees))
+    odom_nees = nees_summary(
+        pose_nees(odom, odometry_covariances(log.odometry_poses, log.config)[1:], true)
+    )
+    out["odom_nees_mean"] = odom_nees["nees_mean"]
+    out["odom_nees_in_band_fraction"] = odom_nees["nees_in_band_fraction"]
     out.update(
         {
             "association_precision": precision,

@@ -1,0 +1,109 @@
+"""Behaviour cloning of a scripted agent as PPO's warm start (agents/imitation.py)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.append(str(ROOT))  # appended: the installed vslam_gym stays first
+
+from agents.imitation import (  # noqa: E402
+    Demonstrations,
+    _discounted,
+    behaviour_clone,
+    collect_demonstrations,
+)
+from agents.train_ppo import PpoSettings, train  # noqa: E402
+
+pytest.importorskip("stable_baselines3")
+
+ENV = "VSlam/ExploreSmall-v0"
+
+
+def test_discounted_returns():
+    np.testing.assert_allclose(_discounted([1.0, 0.0, 2.0], 0.5), [1.5, 1.0, 2.0])
+    assert _discounted([], 0.9).size == 0
+
+
+def test_demonstrations_have_the_observation_space_and_agent_actions():
+    demos = collect_demonstrations(ENV, "wall", steps=40, seed=3, workers=1)
+    space = gym.make(ENV).observation_space
+    assert len(demos) == 40 and demos.episodes == 1
+    assert set(demos.obs) == set(space.spaces)
+    for key, sub in space.spaces.items():
+        assert demos.obs[key].shape == (40, *sub.shape)
+        assert demos.obs[key].dtype == sub.dtype
+        assert all(sub.contains(o) for o in demos.obs[key][:5])
+    assert demos.actions.shape == (40, 2)
+    assert np.all(np.abs(demos.actions) <= 1.0)
+    assert np.all(np.isfinite(demos.returns))
+    # the wall follower drives forward for most steps
+    assert np.mean(demos.actions[:, 0] > 0.0) > 0.5
+    with pytest.raises(ValueError, match="steps and workers"):
+        collect_demonstrations(ENV, "wall", steps=0)
+
+
+def test_behaviour_cloning_fits_the_demonstrated_actions():
+    from stable_baselines3 import PPO
+
+    demos = collect_demonstrations(ENV, "wall", steps=64, seed=1, workers=1)
+    env = gym.make(ENV)
+    model = PPO(
+        "MultiInputPolicy",
+        env,
+        n_steps=64,
+        batch_size=32,
+        policy_kwargs={"net_arch": [32], "features_extractor_kwargs": {"cnn_output_dim": 16}},
+        seed=0,
+        device="cpu",
+    )
+
+    def action_error() -> float:
+        obs = {k: v for k, v in demos.obs.items()}
+        actions, _ = model.predict(obs, deterministic=True)
+        return float(np.abs(actions - demos.actions).mean())
+
+    before = action_error()
+    losses = behaviour_clone(model, demos, epochs=40, batch_size=32, seed=0)
+    after = action_error()
+    assert len(losses) == 40 and losses[-1] < losses[0]
+    assert after < 0.5 * before, (before, after)
+    env.close()
+
+
+def test_train_with_imitation_saves_the_cloned_policy(tmp_path):
+    settings = PpoSettings(n_steps=32, batch_size=16, n_epochs=1, net_arch=(16,), cnn_output_dim=16)
+    path = train(
+        ENV,
+        timesteps=32,
+        out=tmp_path,
+        n_envs=1,
+        settings=settings,
+        checkpoint_every=0,
+        progress_bar=False,
+        subprocesses=False,
+        imitate="wall",
+        imitation_steps=24,
+        imitation_epochs=2,
+    )
+    assert path.is_file() and (tmp_path / "bc_model.zip").is_file()
+    config = json.loads((tmp_path / "train_config.json").read_text())
+    assert config["imitation"]["agent"] == "wall"
+    assert config["imitation"]["steps"] == 24
+    assert len(config["imitation"]["losses"]) == 2
+    with pytest.raises(ValueError, match="--imitate must be one of"):
+        train(ENV, 32, tmp_path / "x", n_envs=1, settings=settings, imitate="nobody")
+
+
+def test_demonstrations_concatenate_workers():
+    demos = collect_demonstrations(ENV, "random", steps=7, seed=2, workers=2)
+    assert isinstance(demos, Demonstrations)
+    assert len(demos) == 7 and demos.episodes == 2
+    assert demos.obs["scan"].shape[0] == 7
