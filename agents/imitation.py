@@ -8,6 +8,11 @@ value head to the discounted belief returns of the demonstrations
 PPO; the policy then sees only what any policy sees (the observation), not the map the
 heuristic reads.
 
+A clone drifts into states the demonstrator never visited (close to obstacles, where it
+collides). Later rounds are DAgger (Ross et al. 2011): the cloned policy drives (the
+agent with probability ``expert_fraction``), the agent labels every visited state with
+its own action, and the policy is fitted to all rounds' data.
+
     python agents/train_ppo.py --env VSlam/Explore-v0 --imitate frontier
                                --imitation-steps 12000 --max-minutes 28 --out runs/ppo_bc
 """
@@ -54,6 +59,16 @@ class Demonstrations:
     def __len__(self) -> int:
         return int(self.actions.shape[0])
 
+    @staticmethod
+    def concatenate(parts: list[Demonstrations]) -> Demonstrations:
+        """All steps of ``parts``, in order."""
+        return Demonstrations(
+            {k: np.concatenate([p.obs[k] for p in parts]) for k in parts[0].obs},
+            np.concatenate([p.actions for p in parts]),
+            np.concatenate([p.returns for p in parts]),
+            sum(p.episodes for p in parts),
+        )
+
 
 def _discounted(rewards: list[float], gamma: float) -> np.ndarray:
     out = np.zeros(len(rewards))
@@ -71,11 +86,23 @@ def _collect(
     seed: int,
     wrapper_kwargs: dict[str, Any],
     gamma: float,
+    policy_path: str | None = None,
+    expert_fraction: float = 1.0,
 ) -> Demonstrations:
-    """One worker: ``steps`` steps over episodes on worlds ``seed, seed + 1, ...``."""
+    """One worker: ``steps`` steps over episodes on worlds ``seed, seed + 1, ...``.
+
+    With ``policy_path`` (a saved PPO model) the policy's deterministic action is executed
+    except with probability ``expert_fraction``; the agent's action is recorded always.
+    """
     spec = vslam_gym.explore_spec(env_id, **wrapper_kwargs) if wrapper_kwargs else env_id
     env = gym.make(spec)
     agent = make_agent(agent_name, seed)
+    policy = None
+    if policy_path is not None:
+        from stable_baselines3 import PPO
+
+        policy = PPO.load(policy_path, device="cpu")
+    rng = np.random.default_rng(seed)
     obs_list: list[dict[str, np.ndarray]] = []
     actions: list[np.ndarray] = []
     returns: list[np.ndarray] = []
@@ -90,7 +117,10 @@ def _collect(
             action = np.clip(np.asarray(agent.act(obs, info), dtype=np.float32), -1.0, 1.0)
             obs_list.append(obs)
             actions.append(action)
-            obs, reward, terminated, truncated, info = env.step(action)
+            executed = action
+            if policy is not None and rng.random() >= expert_fraction:
+                executed = np.asarray(policy.predict(obs, deterministic=True)[0], np.float32)
+            obs, reward, terminated, truncated, info = env.step(executed)
             rewards.append(float(reward))
             done = terminated or truncated
         returns.append(_discounted(rewards, gamma))
@@ -107,6 +137,8 @@ def collect_demonstrations(
     workers: int = 2,
     wrapper_kwargs: dict[str, Any] | None = None,
     gamma: float = 0.99,
+    policy_path: str | None = None,
+    expert_fraction: float = 1.0,
 ) -> Demonstrations:
     """Record ``steps`` steps of a scripted agent, split over ``workers`` processes.
 
@@ -122,28 +154,31 @@ def collect_demonstrations(
         wrapper_kwargs: ``SlamWrapper`` arguments replacing the registration's
             (``slam_config``, ``reward``).
         gamma: discount of the recorded returns (PPO's).
+        policy_path: a saved PPO model that drives instead of the agent (DAgger); the
+            agent still labels every step.
+        expert_fraction: with ``policy_path``, probability that the agent's own action
+            is executed at a step.
 
     Returns:
         The demonstrations, workers concatenated.
     """
     if steps < 1 or workers < 1:
         raise ValueError(f"steps and workers must be >= 1, got {steps} and {workers}")
+    if not 0.0 <= expert_fraction <= 1.0:
+        raise ValueError(f"expert_fraction must lie in [0, 1], got {expert_fraction}")
     kwargs = dict(wrapper_kwargs or {})
     shares = [steps // workers + (1 if i < steps % workers else 0) for i in range(workers)]
     jobs = [
-        (env_id, agent, n, seed + 1000 * i, kwargs, gamma) for i, n in enumerate(shares) if n > 0
+        (env_id, agent, n, seed + 1000 * i, kwargs, gamma, policy_path, expert_fraction)
+        for i, n in enumerate(shares)
+        if n > 0
     ]
     if len(jobs) == 1:
         parts = [_collect(*jobs[0])]
     else:
         with multiprocessing.get_context("spawn").Pool(len(jobs)) as pool:
             parts = pool.starmap(_collect, jobs)
-    return Demonstrations(
-        {k: np.concatenate([p.obs[k] for p in parts]) for k in parts[0].obs},
-        np.concatenate([p.actions for p in parts]),
-        np.concatenate([p.returns for p in parts]),
-        sum(p.episodes for p in parts),
-    )
+    return Demonstrations.concatenate(parts)
 
 
 def behaviour_clone(
@@ -203,3 +238,83 @@ def behaviour_clone(
     if not all(math.isfinite(h) for h in history):
         raise FloatingPointError(f"behaviour cloning diverged: epoch losses {history}")
     return history
+
+
+def clone_agent(
+    model: Any,
+    env_id: str,
+    agent: str,
+    steps: int,
+    rounds: int = 1,
+    epochs: int = 10,
+    workers: int = 2,
+    wrapper_kwargs: dict[str, Any] | None = None,
+    gamma: float = 0.99,
+    expert_fraction: float = 0.5,
+    work_dir: Path | None = None,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Fit ``model``'s policy to a scripted agent: behaviour cloning, then DAgger rounds.
+
+    Round 0 records ``steps`` steps of the agent driving; each later round records
+    ``steps`` steps driven by the current clone (the agent's action executed with
+    probability ``expert_fraction``) and labelled by the agent, and refits the policy
+    to all rounds' steps (:func:`behaviour_clone`, ``epochs`` passes). Round ``r`` drives
+    worlds from ``DEMONSTRATION_SEED + 200 r`` (worker ``i``: plus ``1000 i``).
+
+    Args:
+        model: a PPO model, fitted in place.
+        env_id, agent, workers, wrapper_kwargs, gamma: see :func:`collect_demonstrations`.
+        steps: steps recorded per round.
+        rounds: 1 (behaviour cloning only) or more.
+        epochs: cloning passes per round.
+        expert_fraction: the agent's share of the driving in DAgger rounds.
+        work_dir: where the clone of each round is saved for the workers (needed when
+            ``rounds > 1``).
+        seed: shuffling seed.
+
+    Returns:
+        A record per round: steps, episodes, losses, collection and fitting seconds.
+    """
+    import time
+
+    if rounds < 1:
+        raise ValueError(f"rounds must be >= 1, got {rounds}")
+    if rounds > 1 and work_dir is None:
+        raise ValueError("DAgger rounds need a work_dir for the intermediate policies")
+    parts: list[Demonstrations] = []
+    record: list[dict[str, Any]] = []
+    for r in range(rounds):
+        tick = time.perf_counter()
+        policy_path = None
+        if r > 0:
+            assert work_dir is not None
+            policy_path = str(work_dir / f"bc_round{r - 1}.zip")
+            model.save(policy_path)
+        parts.append(
+            collect_demonstrations(
+                env_id,
+                agent,
+                steps,
+                seed=DEMONSTRATION_SEED + 200 * r,
+                workers=workers,
+                wrapper_kwargs=wrapper_kwargs,
+                gamma=gamma,
+                policy_path=policy_path,
+                expert_fraction=expert_fraction if r > 0 else 1.0,
+            )
+        )
+        collected = time.perf_counter()
+        losses = behaviour_clone(model, Demonstrations.concatenate(parts), epochs, seed=seed + r)
+        record.append(
+            {
+                "round": r,
+                "steps": len(parts[-1]),
+                "episodes": parts[-1].episodes,
+                "expert_fraction": expert_fraction if r > 0 else 1.0,
+                "losses": losses,
+                "collect_s": collected - tick,
+                "clone_s": time.perf_counter() - collected,
+            }
+        )
+    return {"agent": agent, "rounds": record}

@@ -15,8 +15,9 @@ environment), ``train_config.json``; TensorBoard logs with ``--tensorboard DIR``
 ``pip install "vslam-gym[tensorboard]"``).
 
 With ``--imitate AGENT`` the policy is first fitted to ``--imitation-steps`` steps of a
-scripted agent (behaviour cloning, ``agents/imitation.py``; saved as ``bc_model.zip``),
-then trained by PPO; the wall-time limit covers both.
+scripted agent (behaviour cloning, ``agents/imitation.py``; with ``--imitation-rounds``
+> 1 followed by DAgger rounds; saved as ``bc_model.zip``), then trained by PPO; the
+wall-time limit covers both.
 
     python agents/train_ppo.py --env VSlam/Explore-v0 --timesteps 50000 --out runs/ppo
 """
@@ -105,6 +106,7 @@ def train(
     imitate: str | None = None,
     imitation_steps: int = 12_000,
     imitation_epochs: int = 10,
+    imitation_rounds: int = 1,
 ) -> Path:
     """Train PPO and save ``out/final_model.zip``; returns its path.
 
@@ -129,8 +131,11 @@ def train(
         imitate: a scripted agent name: fit the policy to its demonstrations
             (:mod:`agents.imitation`) before PPO; ``out/bc_model.zip`` keeps the cloned
             policy. None: PPO from scratch.
-        imitation_steps: demonstration steps (over ``n_envs`` worker processes).
-        imitation_epochs: behaviour-cloning passes over the demonstrations.
+        imitation_steps: demonstration steps per round (over ``n_envs`` worker
+            processes).
+        imitation_epochs: behaviour-cloning passes over the demonstrations per round.
+        imitation_rounds: 1: behaviour cloning; more: DAgger rounds after it, the clone
+            driving and the agent labelling (:func:`agents.imitation.clone_agent`).
     """
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
@@ -142,28 +147,11 @@ def train(
     settings = settings or PpoSettings()
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    demos = None
     if imitate is not None:
-        from agents.imitation import collect_demonstrations
         from agents.scripted import SCRIPTED_AGENTS
 
         if imitate not in SCRIPTED_AGENTS:
             raise ValueError(f"--imitate must be one of {sorted(SCRIPTED_AGENTS)}, got {imitate!r}")
-
-        wrapper_kwargs: dict[str, Any] = {}
-        if reward is not None:
-            wrapper_kwargs["reward"] = reward
-        if slam_preset is not None:
-            wrapper_kwargs["slam_config"] = slam_preset
-        demos = collect_demonstrations(
-            env_id,
-            imitate,
-            imitation_steps,
-            workers=n_envs if subprocesses else 1,
-            wrapper_kwargs=wrapper_kwargs,
-            gamma=settings.gamma,
-        )
-        demo_s = time.perf_counter() - start
     vec_env = make_vec_env(
         make_env_fn(env_id, seed, reward, slam_preset),
         n_envs=n_envs,
@@ -204,22 +192,28 @@ def train(
             return time.perf_counter() < self.deadline
 
     config: dict[str, Any] = {}
-    if demos is not None:
-        from agents.imitation import behaviour_clone
+    if imitate is not None:
+        from agents.imitation import clone_agent
 
-        tick = time.perf_counter()
-        losses = behaviour_clone(model, demos, epochs=imitation_epochs, seed=seed)
+        wrapper_kwargs: dict[str, Any] = {}
+        if reward is not None:
+            wrapper_kwargs["reward"] = reward
+        if slam_preset is not None:
+            wrapper_kwargs["slam_config"] = slam_preset
+        config["imitation"] = clone_agent(
+            model,
+            env_id,
+            imitate,
+            imitation_steps,
+            rounds=imitation_rounds,
+            epochs=imitation_epochs,
+            workers=n_envs if subprocesses else 1,
+            wrapper_kwargs=wrapper_kwargs,
+            gamma=settings.gamma,
+            work_dir=out,
+            seed=seed,
+        )
         model.save(out / "bc_model.zip")
-        config["imitation"] = {
-            "agent": imitate,
-            "steps": len(demos),
-            "episodes": demos.episodes,
-            "epochs": imitation_epochs,
-            "losses": losses,
-            "collect_s": demo_s,
-            "clone_s": time.perf_counter() - tick,
-        }
-        del demos
     callbacks: list[BaseCallback] = []
     if max_minutes is not None:
         callbacks.append(WallClockLimit(max_minutes * 60.0 - (time.perf_counter() - start)))
@@ -280,8 +274,11 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="scripted agent to clone before PPO (e.g. frontier; default: none)",
     )
-    parser.add_argument("--imitation-steps", type=int, default=12_000, help="demo steps")
-    parser.add_argument("--imitation-epochs", type=int, default=10, help="cloning epochs")
+    parser.add_argument("--imitation-steps", type=int, default=12_000, help="steps per round")
+    parser.add_argument("--imitation-epochs", type=int, default=10, help="epochs per round")
+    parser.add_argument(
+        "--imitation-rounds", type=int, default=1, help="1: cloning; more: DAgger rounds"
+    )
     args = parser.parse_args(argv)
     settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
     path = train(
@@ -300,6 +297,7 @@ def main(argv: list[str] | None = None) -> int:
         imitate=args.imitate,
         imitation_steps=args.imitation_steps,
         imitation_epochs=args.imitation_epochs,
+        imitation_rounds=args.imitation_rounds,
     )
     config = json.loads((args.out / "train_config.json").read_text())
     print(

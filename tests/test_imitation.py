@@ -18,6 +18,7 @@ from agents.imitation import (  # noqa: E402
     Demonstrations,
     _discounted,
     behaviour_clone,
+    clone_agent,
     collect_demonstrations,
 )
 from agents.train_ppo import PpoSettings, train  # noqa: E402
@@ -92,12 +93,16 @@ def test_train_with_imitation_saves_the_cloned_policy(tmp_path):
         imitate="wall",
         imitation_steps=24,
         imitation_epochs=2,
+        imitation_rounds=2,
     )
     assert path.is_file() and (tmp_path / "bc_model.zip").is_file()
     config = json.loads((tmp_path / "train_config.json").read_text())
     assert config["imitation"]["agent"] == "wall"
-    assert config["imitation"]["steps"] == 24
-    assert len(config["imitation"]["losses"]) == 2
+    rounds = config["imitation"]["rounds"]
+    assert [r["steps"] for r in rounds] == [24, 24]
+    assert [r["expert_fraction"] for r in rounds] == [1.0, 0.5]
+    assert all(len(r["losses"]) == 2 for r in rounds)
+    assert (tmp_path / "bc_round0.zip").is_file()  # the clone that drove round 1
     with pytest.raises(ValueError, match="--imitate must be one of"):
         train(ENV, 32, tmp_path / "x", n_envs=1, settings=settings, imitate="nobody")
 
@@ -107,3 +112,33 @@ def test_demonstrations_concatenate_workers():
     assert isinstance(demos, Demonstrations)
     assert len(demos) == 7 and demos.episodes == 2
     assert demos.obs["scan"].shape[0] == 7
+
+
+def test_dagger_round_is_driven_by_the_policy_and_labelled_by_the_agent(tmp_path):
+    """With the clone driving (expert_fraction 0) the recorded labels are still the
+    agent's actions, which the policy would not have taken."""
+    from stable_baselines3 import PPO
+
+    env = gym.make(ENV)
+    model = PPO(
+        "MultiInputPolicy",
+        env,
+        n_steps=32,
+        policy_kwargs={"net_arch": [8], "features_extractor_kwargs": {"cnn_output_dim": 8}},
+        seed=0,
+        device="cpu",
+    )
+    path = str(tmp_path / "policy.zip")
+    model.save(path)
+    demos = collect_demonstrations(
+        ENV, "wall", steps=30, seed=4, workers=1, policy_path=path, expert_fraction=0.0
+    )
+    policy_actions, _ = model.predict(demos.obs, deterministic=True)
+    assert np.abs(policy_actions - demos.actions).mean() > 0.1
+    # the agent labels: its forward command is positive on most steps
+    assert np.mean(demos.actions[:, 0] > 0.0) > 0.5
+    with pytest.raises(ValueError, match="expert_fraction"):
+        collect_demonstrations(ENV, "wall", steps=3, expert_fraction=1.5)
+    with pytest.raises(ValueError, match="work_dir"):
+        clone_agent(model, ENV, "wall", steps=3, rounds=2)
+    env.close()
