@@ -192,9 +192,11 @@ def behaviour_clone(
 ) -> list[float]:
     """Fit a stable-baselines3 actor-critic policy to demonstrations, in place.
 
-    Loss per minibatch: ``-mean log pi(a | o) + value_weight * mean (V(o) - G)^2`` with
-    ``G`` the demonstration's discounted return (the value head then starts near the
-    demonstrator's values, so that PPO's first updates do not undo the cloning).
+    Loss per minibatch: ``-mean log pi(a | o) + value_weight * mean (V(o) - G)^2 / var(G)``
+    with ``G`` the demonstration's discounted return (the value head then starts near the
+    demonstrator's values, so that PPO's first updates do not undo the cloning; dividing
+    by the variance of the returns keeps the value term from swamping the policy term
+    whatever the reward scale).
 
     Args:
         model: a PPO model (``model.policy.evaluate_actions``).
@@ -216,6 +218,7 @@ def behaviour_clone(
     optimizer = torch.optim.Adam(policy.parameters(), lr=learning_rate)
     rng = np.random.default_rng(seed)
     n = len(demos)
+    value_scale = value_weight / max(float(np.var(demos.returns)), 1e-6)
     history = []
     for _ in range(epochs):
         order = rng.permutation(n)
@@ -226,7 +229,7 @@ def behaviour_clone(
             actions = torch.as_tensor(demos.actions[idx], device=policy.device)
             returns = torch.as_tensor(demos.returns[idx], dtype=torch.float32)
             values, log_prob, _ = policy.evaluate_actions(obs, actions)
-            loss = -log_prob.mean() + value_weight * ((values.flatten() - returns) ** 2).mean()
+            loss = -log_prob.mean() + value_scale * ((values.flatten() - returns) ** 2).mean()
             optimizer.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(policy.parameters(), 0.5)
