@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -13,12 +12,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.append(str(ROOT))  # appended: the installed vslam_gym stays first
-
-import vslam_gym  # noqa: E402
-from agents.evaluate_agents import (  # noqa: E402
+import vslam_gym
+from agents.evaluate_agents import (
     TIMING_KEYS,
     PolicyAgent,
     evaluate_agent,
@@ -26,7 +21,7 @@ from agents.evaluate_agents import (  # noqa: E402
     resolve_agent,
     run_agent_episode,
 )
-from agents.scripted import (  # noqa: E402
+from agents.scripted import (
     SCRIPTED_AGENTS,
     FrontierAgent,
     FrontierConfig,
@@ -38,9 +33,9 @@ from agents.scripted import (  # noqa: E402
     WallFollowerConfig,
     make_agent,
 )
-from vslam_gym.sim.world import LidarSpec, RobotSpec, World  # noqa: E402
-from vslam_gym.slam.filter import LandmarkView  # noqa: E402
-from vslam_gym.slam.landmark import LandmarkModel  # noqa: E402
+from vslam_gym.sim.world import LidarSpec, RobotSpec, World
+from vslam_gym.slam.filter import LandmarkView
+from vslam_gym.slam.landmark import LandmarkModel
 
 gym.register_envs(vslam_gym)
 

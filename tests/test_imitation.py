@@ -3,25 +3,19 @@
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.append(str(ROOT))  # appended: the installed vslam_gym stays first
-
-from agents.imitation import (  # noqa: E402
+from agents.imitation import (
     Demonstrations,
     _discounted,
     behaviour_clone,
     clone_agent,
     collect_demonstrations,
 )
-from agents.train_ppo import PpoSettings, train  # noqa: E402
+from agents.train_ppo import PpoSettings, train
 
 pytest.importorskip("stable_baselines3")
 

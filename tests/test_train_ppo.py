@@ -3,21 +3,14 @@
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import vslam_gym
-
-ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.append(str(ROOT))  # appended: the installed vslam_gym stays first
-
-from agents.evaluate_agents import evaluate_agent  # noqa: E402
-from agents.train_ppo import PpoSettings, main, train  # noqa: E402
+from agents.evaluate_agents import evaluate_agent
+from agents.train_ppo import PpoSettings, main, train
 
 pytest.importorskip("stable_baselines3")
 
