@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -279,8 +280,6 @@ def clone_agent(
     Returns:
         A record per round: steps, episodes, losses, collection and fitting seconds.
     """
-    import time
-
     if rounds < 1:
         raise ValueError(f"rounds must be >= 1, got {rounds}")
     if rounds > 1 and work_dir is None:
