@@ -1004,6 +1004,7 @@ _TABLE_COLUMNS = (
     ("final m", "final_error_m", "{:.3f}"),
     ("NEES", "nees_mean", "{:.3g}"),
     ("in band", "nees_in_band_fraction", "{:.2f}"),
+    ("odo NEES", "odom_nees_mean", "{:.3g}"),
     ("assoc P", "association_precision", "{:.3f}"),
     ("upd P", "update_precision", "{:.3f}"),
     ("dup", "duplicate_fraction", "{:.2f}"),
