@@ -70,6 +70,9 @@ def test_behaviour_cloning_fits_the_demonstrated_actions():
     after = action_error()
     assert len(losses) == 40 and losses[-1] < losses[0]
     assert after < 0.5 * before, (before, after)
+    # with the value term divided by the variance of the returns: finite, and smaller
+    normalised = behaviour_clone(model, demos, epochs=1, batch_size=32, normalize_value=True)
+    assert np.isfinite(normalised[0]) and normalised[0] < losses[0]
     env.close()
 
 
