@@ -121,6 +121,7 @@ def test_dagger_round_is_driven_by_the_policy_and_labelled_by_the_agent(tmp_path
         "MultiInputPolicy",
         env,
         n_steps=32,
+        batch_size=32,
         policy_kwargs={"net_arch": [8], "features_extractor_kwargs": {"cnn_output_dim": 8}},
         seed=0,
         device="cpu",
