@@ -22,6 +22,24 @@ pytest.importorskip("stable_baselines3")
 ENV = "VSlam/ExploreSmall-v0"
 
 
+def small_ppo(env, hidden, features):
+    """A small PPO model on ``env`` (one hidden layer, a small CNN)."""
+    from stable_baselines3 import PPO
+
+    return PPO(
+        "MultiInputPolicy",
+        env,
+        n_steps=32,
+        batch_size=32,
+        policy_kwargs={
+            "net_arch": [hidden],
+            "features_extractor_kwargs": {"cnn_output_dim": features},
+        },
+        seed=0,
+        device="cpu",
+    )
+
+
 def test_discounted_returns():
     np.testing.assert_allclose(_discounted([1.0, 0.0, 2.0], 0.5), [1.5, 1.0, 2.0])
     assert _discounted([], 0.9).size == 0
@@ -46,19 +64,9 @@ def test_demonstrations_have_the_observation_space_and_agent_actions():
 
 
 def test_behaviour_cloning_fits_the_demonstrated_actions():
-    from stable_baselines3 import PPO
-
     demos = collect_demonstrations(ENV, "wall", steps=64, seed=1, workers=1)
     env = gym.make(ENV)
-    model = PPO(
-        "MultiInputPolicy",
-        env,
-        n_steps=64,
-        batch_size=32,
-        policy_kwargs={"net_arch": [32], "features_extractor_kwargs": {"cnn_output_dim": 16}},
-        seed=0,
-        device="cpu",
-    )
+    model = small_ppo(env, hidden=32, features=16)
 
     def action_error() -> float:
         obs = {k: v for k, v in demos.obs.items()}
@@ -114,18 +122,8 @@ def test_demonstrations_concatenate_workers():
 def test_dagger_round_is_driven_by_the_policy_and_labelled_by_the_agent(tmp_path):
     """With the clone driving (expert_fraction 0) the recorded labels are still the
     agent's actions, which the policy would not have taken."""
-    from stable_baselines3 import PPO
-
     env = gym.make(ENV)
-    model = PPO(
-        "MultiInputPolicy",
-        env,
-        n_steps=32,
-        batch_size=32,
-        policy_kwargs={"net_arch": [8], "features_extractor_kwargs": {"cnn_output_dim": 8}},
-        seed=0,
-        device="cpu",
-    )
+    model = small_ppo(env, hidden=8, features=8)
     path = str(tmp_path / "policy.zip")
     model.save(path)
     demos = collect_demonstrations(
