@@ -95,8 +95,7 @@ def _collect(
     With ``policy_path`` (a saved PPO model) the policy's deterministic action is executed
     except with probability ``expert_fraction``; the agent's action is recorded always.
     """
-    spec = vslam_gym.explore_spec(env_id, **wrapper_kwargs) if wrapper_kwargs else env_id
-    env = gym.make(spec)
+    env = gym.make(vslam_gym.explore_spec(env_id, **wrapper_kwargs))
     agent = make_agent(agent_name, seed)
     policy = None
     if policy_path is not None:

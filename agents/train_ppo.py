@@ -70,20 +70,24 @@ class PpoSettings:
     cnn_output_dim: int = 128
 
 
+def wrapper_kwargs(reward: str | None, slam_preset: str | None) -> dict[str, Any]:
+    """``SlamWrapper`` arguments replacing the registration's: those given (not None).
+
+    ``reward``: a reward preset name; ``slam_preset``: a ``SlamConfig`` preset name.
+    """
+    given = {"reward": reward, "slam_config": slam_preset}
+    return {k: v for k, v in given.items() if v is not None}
+
+
 def make_env_fn(env_id: str, seed: int, reward: str | None, slam_preset: str | None = None) -> Any:
     """A picklable constructor of one training environment (for ``make_vec_env``).
 
     ``reward`` and ``slam_preset`` (a ``SlamConfig`` preset name) replace the
     registration's wrapper arguments when given.
     """
-    wrapper_kwargs = {}
-    if reward is not None:
-        wrapper_kwargs["reward"] = reward
-    if slam_preset is not None:
-        wrapper_kwargs["slam_config"] = slam_preset
+    spec = vslam_gym.explore_spec(env_id, **wrapper_kwargs(reward, slam_preset))
 
     def make() -> gym.Env:
-        spec = vslam_gym.explore_spec(env_id, **wrapper_kwargs) if wrapper_kwargs else env_id
         return gym.make(spec)
 
     return make
@@ -195,11 +199,6 @@ def train(
     if imitate is not None:
         from agents.imitation import clone_agent
 
-        wrapper_kwargs: dict[str, Any] = {}
-        if reward is not None:
-            wrapper_kwargs["reward"] = reward
-        if slam_preset is not None:
-            wrapper_kwargs["slam_config"] = slam_preset
         config["imitation"] = clone_agent(
             model,
             env_id,
@@ -208,7 +207,7 @@ def train(
             rounds=imitation_rounds,
             epochs=imitation_epochs,
             workers=n_envs if subprocesses else 1,
-            wrapper_kwargs=wrapper_kwargs,
+            wrapper_kwargs=wrapper_kwargs(reward, slam_preset),
             gamma=settings.gamma,
             work_dir=out,
             seed=seed,

@@ -633,10 +633,10 @@ def match_scan_why(
         if config.on_ambiguity == "decline":
             return None, "ambiguous"
         # The rival nearest the prior (without a prior term: the best inlier fraction).
-        d = term.offset(poses.copy())
-        mahalanobis = np.einsum("hi,ij,hj->h", d, term.info, d)
-        mahalanobis[~rivals] = np.inf
         if use_prior:
+            d = term.offset(poses.copy())
+            mahalanobis = np.einsum("hi,ij,hj->h", d, term.info, d)
+            mahalanobis[~rivals] = np.inf
             best = int(np.argmin(mahalanobis))
         reason = "ambiguous_prior"
     cov = _covariance(res, best, term, config, check_constraint=not use_prior)
