@@ -60,8 +60,8 @@ def test_first_50_intel_scans_complete_and_beat_dead_reckoning(tmp_path):
         assert (tmp_path / name).stat().st_size > 0
 
 
-def test_replay_of_a_written_log_and_bad_mode(tmp_path):
-    """A straight corridor logged by hand: the replay runs and reports every key."""
+def _corridor_log(tmp_path: Path) -> Path:
+    """A straight corridor logged by hand: 6 scans 0.3 m apart between walls at y = +-2."""
     lines = []
     bearings = np.deg2rad(np.arange(-90, 90))  # Carmen order, right to left
     for k in range(6):
@@ -76,11 +76,36 @@ def test_replay_of_a_written_log_and_bad_mode(tmp_path):
         )
     path = tmp_path / "corridor.log"
     path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_replay_of_a_written_log_and_bad_mode(tmp_path):
+    """The hand-written corridor: the replay runs and reports every key."""
+    path = _corridor_log(tmp_path)
     result = replay(path, "synthetic", seed=1)
     assert KEYS <= result["metrics"].keys()
     assert result["metrics"]["completed"] and result["metrics"]["scans"] == 6
     with pytest.raises(ValueError, match="odometry must be one of"):
         replay(path, "wheel")
+
+
+def test_replay_set_applies_options_over_the_preset(tmp_path, capsys):
+    """``--set`` overrides preset options, is recorded, and rejects unknown keys."""
+    path = _corridor_log(tmp_path)
+    out = tmp_path / "run"
+    overrides = {"filter": {"prealign": "none"}, "matcher": {"ambiguity_ratio": 0.9}}
+    args = ["replay", str(path), "--preset", "logs", "--out", str(out), "--no-progress"]
+    assert main([*args, "--set", json.dumps(overrides)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["prealign"] == "none"  # the logs preset's "odometry" was replaced
+    assert metrics["prealigned_fraction"] == 0
+    assert metrics["overrides"] == overrides and metrics["completed"]
+    with pytest.raises(SystemExit) as exc:
+        main([*args, "--set", '{"filter": {"candidate_max_median_distanse": 0.5}}'])
+    assert exc.value.code == 2
+    assert "candidate_max_median_distanse" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="not both"):
+        replay(path, config=SlamConfig(), overrides=overrides)
 
 
 @pytest.mark.skipif(not INTEL.exists(), reason="the Intel log is not in the shared folder")

@@ -1089,8 +1089,12 @@ def _seeds_argument(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(str(err)) from err
 
 
-def _overrides_argument(text: str) -> dict[str, Any]:
-    """``--set``: a JSON object of configuration sections (checked by ``SlamConfig``)."""
+def overrides_argument(text: str) -> dict[str, Any]:
+    """``--set`` (``evaluate``, ``replay``): a JSON object of configuration sections.
+
+    Checked by :meth:`SlamConfig.from_dict`; unknown sections or keys raise
+    ``argparse.ArgumentTypeError`` (a usage error) naming them.
+    """
     try:
         value = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -1131,7 +1135,7 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     parser.add_argument(
         "--set",
         dest="overrides",
-        type=_overrides_argument,
+        type=overrides_argument,
         default=None,
         metavar="JSON",
         help='options over the preset, e.g. \'{"filter": {"measurement_min_travel": 0.1}}\'',

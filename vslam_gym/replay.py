@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ import numpy as np
 from vslam_gym.evaluation import (
     final_position_error,
     heading_rmse,
+    overrides_argument,
     position_ate_rmse,
     timing_summary,
     write_tum,
@@ -73,13 +75,16 @@ def replay(
     progress: bool = False,
     prealign: str | None = None,
     config: SlamConfig | None = None,
+    overrides: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Feed a log to :class:`VertexSLAM` scan by scan; return the metrics and trajectories.
 
     Every scan is a step, scan 0 included (with zero odometry, at the initial pose).
 
-    ``config`` replaces the preset's configuration; ``prealign`` overrides its
-    ``FilterConfig.prealign`` (None: keep it).
+    ``overrides`` (configuration sections, e.g. ``{"filter": {...}, "matcher": {...}}``,
+    as ``vslam-gym replay --set``) apply over the preset; ``config`` replaces the preset's
+    configuration (not both); ``prealign`` overrides ``FilterConfig.prealign`` last
+    (None: keep it).
 
     Returns:
         A dict with ``metrics`` (``scans``, ``completed``, ``ate_rmse_m``,
@@ -90,10 +95,15 @@ def replay(
         final ``belief``.
 
     Raises:
-        ValueError: unknown odometry mode, malformed log (``CarmenFormatError``).
+        ValueError: unknown odometry mode, malformed log (``CarmenFormatError``), unknown
+            or invalid override, or both ``config`` and ``overrides``.
     """
     if odometry not in ODOMETRY_MODES:
         raise ValueError(f"odometry must be one of {ODOMETRY_MODES}, got {odometry!r}")
+    if config is not None and overrides:
+        raise ValueError("give either config or overrides, not both")
+    if overrides:
+        config = SlamConfig.from_dict({"preset": preset, **overrides})
     log = read_carmen(path, CarmenConfig(max_range=max_range))
     n = log.num_scans if max_scans is None else min(log.num_scans, int(max_scans))
     if odometry == "logged":
@@ -137,6 +147,7 @@ def replay(
         "odometry": odometry,
         "seed": seed,
         "preset": preset,
+        "overrides": dict(overrides or {}),
         "scans": int(slam_arr.shape[0]),
         "completed": completed and finite and slam_arr.shape[0] == n,
         "ate_rmse_m": position_ate_rmse(slam_arr, true),
@@ -229,6 +240,14 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
         help="whole-scan alignment before the landmark association (FilterConfig.prealign; "
         "default: the preset's)",
     )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        type=overrides_argument,
+        default=None,
+        metavar="JSON",
+        help='options over the preset, e.g. \'{"filter": {"candidate_max_median_distance": 0.5}}\'',
+    )
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--max-scans", type=int, default=None, help="replay only the first N")
     parser.add_argument(
@@ -253,6 +272,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         args.max_range,
         progress=not args.no_progress,
         prealign=args.prealign,
+        overrides=args.overrides,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -266,7 +286,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     plot_replay(result, out)
     print(
         ", ".join(
-            f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}" for k, v in metrics.items()
+            f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
+            for k, v in metrics.items()
+            if v or k != "overrides"
         )
     )
     print(f"wall time {time.perf_counter() - start:.1f} s; wrote {out}/metrics.json")
