@@ -126,6 +126,17 @@ class ScanMatcherConfig:
             position ATE [m]; decline -> prior): Intel 0.78 / 1.68 -> 0.81 / 0.76, ACES
             1.44 / 1.62 -> 1.49 / 1.61. ``"prior"`` in the ``logs`` preset.
         ambiguity_heading_deg: see ``ambiguity_ratio`` [deg].
+        selection_points: 0 (every preset): the refined pose with the largest inlier
+            fraction wins. Above 0 (with the prior): the pose with the largest
+            ``selection_points * fraction - 0.5 * m2`` wins, ``m2`` its squared
+            Mahalanobis distance from the prior: a maximum a posteriori choice with the
+            scan's inliers counted as ``selection_points`` independent observations
+            (neighbouring returns are correlated); the same score picks the coarse poses
+            that are refined. Meant for a symmetric place (an orthogonal corridor
+            junction) under a broad prior: on the Intel log, synthetic seed 7, scan 534 (a
+            backward step, prior heading sigma 24 deg) a pose 90 deg off won by inliers
+            0.861 to 0.828 against one 2 deg off, and the matcher alone ended at an ATE of
+            13 m.
         min_constraint: smallest eigenvalue of the inliers' normal scatter
             ``sum w n n^T / sum w``; a corridor (all normals parallel) has about 0 and
             is declined.
@@ -171,6 +182,7 @@ class ScanMatcherConfig:
     ambiguity_translation: float = 0.3
     ambiguity_heading_deg: float = 3.0
     on_ambiguity: str = "decline"
+    selection_points: float = 0.0
     min_constraint: float = 0.05
     covariance_inflation: float = 10.0
     sigma_floor: tuple[float, float, float] = (0.01, 0.01, 0.002)
@@ -211,7 +223,12 @@ class ScanMatcherConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"ScanMatcherConfig.{name} must be finite and > 0, got {value}")
-        for name in ("keyframe_distance", "keyframe_heading_deg", "revisit_radius"):
+        for name in (
+            "keyframe_distance",
+            "keyframe_heading_deg",
+            "revisit_radius",
+            "selection_points",
+        ):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"ScanMatcherConfig.{name} must be finite and >= 0, got {value}")
@@ -527,6 +544,22 @@ def _merge(poses: np.ndarray, config: ScanMatcherConfig) -> np.ndarray:
     return poses[np.sort(first)]
 
 
+def _scores(
+    poses: np.ndarray, fraction: np.ndarray, prior: _Prior | None, config: ScanMatcherConfig
+) -> np.ndarray:
+    """What ranks candidate poses ``(h, 3)`` (``ScanMatcherConfig.selection_points``).
+
+    Their inlier fractions ``(h,)``, or with ``selection_points > 0`` and a prior
+    ``selection_points * fraction - 0.5 * m2`` (``m2``: squared Mahalanobis distance of
+    each pose from the prior).
+    """
+    if config.selection_points <= 0.0 or prior is None:
+        return fraction
+    d = prior.offset(poses.copy())
+    m2 = np.einsum("hi,ij,hj->h", d, prior.info, d)
+    return config.selection_points * fraction - 0.5 * m2
+
+
 def match_scan(
     points: np.ndarray,
     local_map: LocalMap,
@@ -606,7 +639,8 @@ def match_scan_why(
     )
     poses = _merge(poses, config)
     _, fraction = _inliers(poses, coarse, reference, config.max_distance_mid, config)
-    poses = poses[np.argsort(-fraction, kind="stable")[: config.refine_candidates]]
+    rank = _scores(poses, fraction, term if use_prior else None, config)
+    poses = poses[np.argsort(-rank, kind="stable")[: config.refine_candidates]]
     poses = _gauss_newton(
         poses,
         points,
@@ -616,7 +650,7 @@ def match_scan_why(
         config,
     )
     res, fraction = _inliers(poses, points, reference, config.max_distance_end, config)
-    best = int(np.argmax(fraction))
+    best = int(np.argmax(_scores(poses, fraction, term if use_prior else None, config)))
     if (
         fraction[best] < config.min_inlier_fraction
         or fraction[best] * points.shape[0] < config.min_points
