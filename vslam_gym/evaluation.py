@@ -1110,6 +1110,18 @@ def overrides_argument(text: str) -> dict[str, Any]:
     return value
 
 
+def add_overrides_argument(parser: argparse.ArgumentParser, example: str) -> None:
+    """Add ``--set JSON`` (:func:`overrides_argument`, stored as ``overrides``) to a parser."""
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        type=overrides_argument,
+        default=None,
+        metavar="JSON",
+        help=f"options over the preset, e.g. '{example}'",
+    )
+
+
 def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``evaluate`` subcommand (its handler is :func:`cmd_evaluate`)."""
     parser = subparsers.add_parser(
@@ -1132,14 +1144,7 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
         default="default",
         help="estimator configuration (default %(default)s)",
     )
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        type=overrides_argument,
-        default=None,
-        metavar="JSON",
-        help='options over the preset, e.g. \'{"filter": {"measurement_min_travel": 0.1}}\'',
-    )
+    add_overrides_argument(parser, '{"filter": {"measurement_min_travel": 0.1}}')
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument(
         "--max-steps", type=int, default=None, help="step budget per seed (default: whole route)"

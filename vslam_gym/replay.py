@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 
 from vslam_gym.evaluation import (
+    add_overrides_argument,
     final_position_error,
     heading_rmse,
-    overrides_argument,
     position_ate_rmse,
     timing_summary,
     write_tum,
@@ -240,14 +240,7 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
         help="whole-scan alignment before the landmark association (FilterConfig.prealign; "
         "default: the preset's)",
     )
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        type=overrides_argument,
-        default=None,
-        metavar="JSON",
-        help='options over the preset, e.g. \'{"filter": {"candidate_max_median_distance": 0.5}}\'',
-    )
+    add_overrides_argument(parser, '{"filter": {"candidate_max_median_distance": 0.5}}')
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--max-scans", type=int, default=None, help="replay only the first N")
     parser.add_argument(
