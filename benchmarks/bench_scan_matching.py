@@ -13,7 +13,11 @@ Usage::
 
     python benchmarks/bench_scan_matching.py LOG [--odometry synthetic|logged]
                                              [--seeds 0-4] [--max-scans N]
-                                             [--preset logs|default]
+                                             [--preset logs|default] [--worst N]
+
+``--worst N`` also prints, per run, the N steps whose matched relative pose is furthest
+in heading from the corrected poses' (step, decision, heading and position error of
+the step, the odometry's heading error, the true turn): where a run went wrong.
 
 ``--preset`` picks the matcher configuration (``SlamConfig.preset(name).matcher``):
 ``logs`` (default) or ``default`` (the matcher before keyframe revisits and
@@ -39,6 +43,7 @@ from vslam_gym.logs import (
 from vslam_gym.replay import DEFAULT_MAX_RANGE
 from vslam_gym.slam.config import FilterConfig
 from vslam_gym.slam.filter import SlamConfig
+from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.motion import (
     compose,
     frame_rotation,
@@ -55,12 +60,16 @@ from vslam_gym.slam.scan_matching import (
 
 
 def run(log: CarmenLog, increments: np.ndarray, n: int, config: ScanMatcherConfig) -> dict:
-    """Scan-matching odometry over the first ``n`` scans; ATE, declines, CPU ms."""
+    """Scan-matching odometry over the first ``n`` scans; ATE, declines, CPU ms.
+
+    Also ``steps``: per step ``(scan, decision, heading error [deg], position error [m],
+    odometry heading error [deg], true turn [deg])`` of the relative pose used.
+    """
     filt = FilterConfig()
     local = LocalMap(config)
     pose = log.poses[0].copy()
     local.add(scan_points(log.ranges[0], log.bearings, log.max_range), pose)  # scan 0
-    poses, cpu_ms, reasons = [pose], [], collections.Counter()
+    poses, cpu_ms, reasons, steps = [pose], [], collections.Counter(), []
     for k in range(1, n):
         u = increments[k - 1]
         delta, cov = increment_to_relative(
@@ -74,8 +83,20 @@ def run(log: CarmenLog, increments: np.ndarray, n: int, config: ScanMatcherConfi
         )
         cpu_ms.append((time.process_time() - start) * 1e3)
         reasons[why] += 1
+        odometry_heading = delta[2]
         if result is not None:
             delta = compose(inverse(pose), result.pose)
+        true = compose(inverse(log.poses[k - 1]), log.poses[k])
+        steps.append(
+            (
+                k,
+                why,
+                float(np.degrees(wrap_angle(delta[2] - true[2]))),
+                float(np.hypot(*(delta[:2] - true[:2]))),
+                float(np.degrees(wrap_angle(odometry_heading - true[2]))),
+                float(np.degrees(true[2])),
+            )
+        )
         pose = compose(pose, delta)
         poses.append(pose)
         local.add(points, pose)
@@ -83,6 +104,7 @@ def run(log: CarmenLog, increments: np.ndarray, n: int, config: ScanMatcherConfi
         "ate_rmse_m": position_ate_rmse(np.array(poses), log.poses[:n]),
         "reasons": dict(reasons),
         "cpu_ms_median": float(np.median(cpu_ms)),
+        "steps": steps,
     }
 
 
@@ -93,6 +115,9 @@ def main() -> None:
     parser.add_argument("--seeds", default="0-4", help="synthetic odometry seeds, e.g. 0-4")
     parser.add_argument("--max-scans", type=int, default=None)
     parser.add_argument("--preset", choices=("logs", "default"), default="logs")
+    parser.add_argument(
+        "--worst", type=int, default=0, help="print the N steps with the largest heading error"
+    )
     args = parser.parse_args()
     print(machine_description())
     log = read_carmen(args.log, CarmenConfig(max_range=DEFAULT_MAX_RANGE))
@@ -108,6 +133,11 @@ def main() -> None:
             f"{args.odometry} seed {seed}: ATE {out['ate_rmse_m']:.3f} m, "
             f"{out['reasons']}, matcher CPU median {out['cpu_ms_median']:.1f} ms"
         )
+        for step in sorted(out["steps"], key=lambda s: -abs(s[2]))[: args.worst]:
+            print(
+                "  scan {}: {}, heading error {:+.1f} deg, position error {:.3f} m "
+                "(odometry {:+.1f} deg, true turn {:+.1f} deg)".format(*step)
+            )
     print(
         f"mean ATE {np.mean(ates):.3f} +- {np.std(ates):.3f} m over {len(ates)} run(s), {n} scans"
     )
