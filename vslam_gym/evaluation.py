@@ -1089,7 +1089,7 @@ def _seeds_argument(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(str(err)) from err
 
 
-def overrides_argument(text: str) -> dict[str, Any]:
+def _overrides_argument(text: str) -> dict[str, Any]:
     """``--set`` (``evaluate``, ``replay``): a JSON object of configuration sections.
 
     Checked by :meth:`SlamConfig.from_dict`; unknown sections or keys raise
@@ -1111,11 +1111,11 @@ def overrides_argument(text: str) -> dict[str, Any]:
 
 
 def add_overrides_argument(parser: argparse.ArgumentParser, example: str) -> None:
-    """Add ``--set JSON`` (:func:`overrides_argument`, stored as ``overrides``) to a parser."""
+    """Add ``--set JSON`` (:func:`_overrides_argument`, stored as ``overrides``) to a parser."""
     parser.add_argument(
         "--set",
         dest="overrides",
-        type=overrides_argument,
+        type=_overrides_argument,
         default=None,
         metavar="JSON",
         help=f"options over the preset, e.g. '{example}'",

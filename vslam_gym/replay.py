@@ -281,7 +281,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         ", ".join(
             f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
             for k, v in metrics.items()
-            if v or k != "overrides"
+            if k != "overrides" or v  # printed only when there are any
         )
     )
     print(f"wall time {time.perf_counter() - start:.1f} s; wrote {out}/metrics.json")

@@ -463,6 +463,11 @@ class _Prior:
         d[:, 2] = wrap_angle(d[:, 2])
         return d
 
+    def mahalanobis2(self, poses: np.ndarray) -> np.ndarray:
+        """Squared Mahalanobis distances ``(h,)`` of ``poses`` ``(h, 3)`` from the mean."""
+        d = self.offset(poses)
+        return np.einsum("hi,ij,hj->h", d, self.info, d)
+
 
 @dataclass
 class _Residuals:
@@ -560,9 +565,7 @@ def _scores(
     """
     if config.selection_points <= 0.0 or prior is None:
         return fraction
-    d = prior.offset(poses.copy())
-    m2 = np.einsum("hi,ij,hj->h", d, prior.info, d)
-    return config.selection_points * fraction - 0.5 * m2
+    return config.selection_points * fraction - 0.5 * prior.mahalanobis2(poses)
 
 
 def match_scan(
@@ -673,8 +676,7 @@ def match_scan_why(
             return None, "ambiguous"
         # The rival nearest the prior (without a prior term: the best inlier fraction).
         if use_prior:
-            d = term.offset(poses.copy())
-            mahalanobis = np.einsum("hi,ij,hj->h", d, term.info, d)
+            mahalanobis = term.mahalanobis2(poses)
             mahalanobis[~rivals] = np.inf
             best = int(np.argmin(mahalanobis))
         reason = "ambiguous_prior"
