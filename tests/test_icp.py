@@ -515,6 +515,32 @@ def test_cycle_returns_leaves_converging_alignments_alone():
         IcpConfig(cycle_returns=-1)
 
 
+def test_freeze_on_cycle_converges_where_the_association_alternates():
+    endless, odd = cycle_run(), cycle_run(max_iterations=49)
+    res = cycle_run(freeze_on_cycle=True)
+    # frozen at the first return, then a few point-to-line steps to that fixed point
+    assert (res.reason, res.converged, res.frozen) == ("converged", True, True)
+    assert res.iterations <= 8 and res.n_used == endless.n_used == 5
+    # the fixed point of one of the two alternating associations: within 2 mm of the
+    # cycle's state there, 0.29 m from the other, and a closer fit than either state
+    near = [np.hypot(*(res.pose[:2] - r.pose[:2])) for r in (endless, odd)]
+    assert min(near) < 0.002 and max(near) > 0.25
+    assert res.rms < 0.5 * endless.rms
+    assert not endless.frozen
+
+
+def test_freeze_on_cycle_leaves_converging_alignments_alone():
+    model = model_of(SHAPES["L"])
+    points = set_points(scan_of(SHAPES["L"], TRUE), TRUE)
+    for offset in OFFSETS:
+        prior = TRUE + offset
+        base = run(points, model, prior, point_to_line=True)
+        watched = run(points, model, prior, point_to_line=True, freeze_on_cycle=True)
+        assert base.reason == watched.reason == "converged" and not watched.frozen
+        np.testing.assert_array_equal(watched.pose, base.pose)
+        assert watched.iterations == base.iterations
+
+
 # ----------------------------------------------------------------- pose bound
 
 

@@ -101,6 +101,14 @@ class IcpConfig:
             ``max_iterations`` without converging: the state of the cycle it would have
             reached there is returned (the same pose within the tolerances), without
             the iterations. 0 (the thesis) never stops. Not a thesis value.
+        freeze_on_cycle: when an iteration's association (nearest line of every point
+            and which points are used) equals one of an earlier iteration other than the
+            previous one, the nearest segments alternate: keep that association (and
+            stop recomputing visibility) for the remaining steps, so the alignment
+            converges to its fixed point in a few steps instead of alternating to
+            ``max_iterations``; the result's ``reason`` reads ``"converged"`` or
+            ``"max_iterations"`` as usual and ``frozen`` is True. False (the thesis)
+            recomputes the association every step. Not a thesis value.
     """
 
     max_iterations: int = 50
@@ -112,6 +120,7 @@ class IcpConfig:
     point_to_line: bool = False
     max_condition: float = 1e10
     cycle_returns: int = 0
+    freeze_on_cycle: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.max_iterations, bool) or int(self.max_iterations) < 1:
@@ -152,6 +161,7 @@ class IcpResult:
         reason: why the alignment stopped: ``"converged"``, ``"max_iterations"``,
             ``"too_few_points"``, ``"singular"``, ``"cycle"`` (``IcpConfig.cycle_returns``)
             or ``"out_of_bound"`` (the pose left the caller's bound, :func:`align_many`).
+        frozen: the association was frozen after a cycle (``IcpConfig.freeze_on_cycle``).
     """
 
     pose: np.ndarray
@@ -161,6 +171,7 @@ class IcpResult:
     n_used: int
     rms: float
     reason: str
+    frozen: bool = False
 
 
 @dataclass(frozen=True)
@@ -579,25 +590,38 @@ def _align(
     iterations, n_used, rms = 0, 0, np.inf
     reason = "max_iterations"
     watch = _CycleWatch(config) if config.cycle_returns else None
-    for _ in range(config.max_iterations):
-        vis = lines.visible_from(*x, max_range, half_fov)
-        if q.shape[0] == 0 or not np.count_nonzero(vis):
-            n_used, rms, reason = 0, np.inf, "too_few_points"
-            break
-        # Nearest visible segment of every point (R-22): dense (n, visible lines) arrays.
-        sub = lines.subset(vis)
-        aqx = qx[:, None] - sub.ax
-        aqy = qy[:, None] - sub.ay
-        s = _unit_clip((aqx * sub.abx + aqy * sub.aby) * sub.inv_length2)
-        dx = aqx - s * sub.abx
-        dy = aqy - s * sub.aby
-        j = np.argmin(dx * dx + dy * dy, axis=1)  # into the visible lines
-        # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
-        nx, ny = sub.nx[j], sub.ny[j]
-        e = (qx - sub.ax[j]) * nx + (qy - sub.ay[j]) * ny  # = aq[i, j_i] . n
-        if sub.index is not None:
-            j = sub.index[j]
-        keep = ~(unknown[j] & (e <= 0.0))
+    seen: dict[bytes, int] | None = {} if config.freeze_on_cycle else None
+    frozen: tuple[np.ndarray, np.ndarray] | None = None  # (nearest line, used) once frozen
+    for it in range(config.max_iterations):
+        if frozen is None:
+            vis = lines.visible_from(*x, max_range, half_fov)
+            if q.shape[0] == 0 or not np.count_nonzero(vis):
+                n_used, rms, reason = 0, np.inf, "too_few_points"
+                break
+            # Nearest visible segment of every point (R-22): dense (n, visible lines).
+            sub = lines.subset(vis)
+            aqx = qx[:, None] - sub.ax
+            aqy = qy[:, None] - sub.ay
+            s = _unit_clip((aqx * sub.abx + aqy * sub.aby) * sub.inv_length2)
+            dx = aqx - s * sub.abx
+            dy = aqy - s * sub.aby
+            j = np.argmin(dx * dx + dy * dy, axis=1)  # into the visible lines
+            # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
+            nx, ny = sub.nx[j], sub.ny[j]
+            e = (qx - sub.ax[j]) * nx + (qy - sub.ay[j]) * ny  # = aq[i, j_i] . n
+            if sub.index is not None:
+                j = sub.index[j]
+            keep = ~(unknown[j] & (e <= 0.0))
+            if seen is not None:
+                key = j.tobytes() + keep.tobytes()
+                earlier = seen.get(key)
+                if earlier is not None and earlier < it - 1:
+                    frozen = (j, keep)
+                seen[key] = it
+        else:  # the frozen association: same nearest lines and used points
+            j, keep = frozen
+            nx, ny = lines.nx[j], lines.ny[j]
+            e = (qx - lines.ax[j]) * nx + (qy - lines.ay[j]) * ny
         n_used = int(np.count_nonzero(keep))
         if n_used < q.shape[0]:
             e, nx, ny, ux, uy = e[keep], nx[keep], ny[keep], qx[keep], qy[keep]
@@ -664,6 +688,7 @@ def _align(
         n_used=n_used,
         rms=rms,
         reason=reason,
+        frozen=frozen is not None,
     )
 
 
