@@ -448,3 +448,56 @@ def test_unfinished_update_gives_the_filter_the_same_factor():
     # the object part spans the posterior's object lines: [X_l, A, B, C, D', X_r] less
     # the chain vertices, here A..D' (u = [1, 1, 0, 0, 0, 1, 1])
     assert quick.object_vertices == (2, 6)
+
+
+# ----------------------------------------------------------------- run ends that continue
+
+
+def wall_scan(edges, heading: float = np.pi / 2) -> tuple[Scan, np.ndarray]:
+    pose = np.array([0.0, 0.0, heading])
+    return Scan.from_arrays(cast(pose, edges, PHI, SENSOR.max_range), PHI, SENSOR), pose
+
+
+def run_vertices_on_wall(scan: Scan, pose: np.ndarray, s: int, e: int) -> np.ndarray:
+    """The points of beams ``s`` and ``e`` (on the wall) as a run's end vertices."""
+    a = pose[2] + scan.bearings[[s, e]]
+    r = scan.ranges[[s, e]]
+    return np.column_stack([r * np.cos(a), r * np.sin(a)])
+
+
+def test_a_run_end_continued_by_the_next_beam_is_not_an_end():
+    cfg = ModelConfig(continuation_gate=3.0, continuation_beams=2)
+    long_wall = polygon_edges([np.array([(10.0, 5.0), (-10.0, 5.0), (-10.0, 6.0), (10.0, 6.0)])])
+    scan, pose = wall_scan(long_wall)
+    s, e = 80, 100  # the middle of the wall: the beams on both sides hit the wall too
+    v = run_vertices_on_wall(scan, pose, s, e)
+    assert update_module._continues(v, scan, s, e, pose, SENSOR, cfg) == (True, True)
+    # the same beam 4 range sigmas off the extension (an edge of another surface): an end
+    ranges = scan.ranges.copy()
+    ranges[s - 1] += 4.0 * SENSOR.sigma_range
+    moved = Scan.from_arrays(ranges, PHI, SENSOR)
+    assert update_module._continues(v, moved, s, e, pose, SENSOR, cfg) == (False, True)
+    # a shallow corner: the first beam out still near the extension, the second not
+    ranges = scan.ranges.copy()
+    ranges[e + 2] += 4.0 * SENSOR.sigma_range
+    bent = Scan.from_arrays(ranges, PHI, SENSOR)
+    assert update_module._continues(v, bent, s, e, pose, SENSOR, cfg) == (True, False)
+    one = ModelConfig(continuation_gate=3.0, continuation_beams=1)
+    assert update_module._continues(v, bent, s, e, pose, SENSOR, one) == (True, True)
+    # at the field-of-view limit the beams that exist decide (turned so that beam 0,
+    # the leftmost, hits the wall 9 m to the left)
+    scan, pose = wall_scan(long_wall, np.pi / 2 - 0.5)
+    assert scan.returns[0]
+    v = run_vertices_on_wall(scan, pose, 1, 20)
+    assert update_module._continues(v, scan, 1, 20, pose, SENSOR, cfg) == (True, True)
+    # the wall's real ends: no return beyond either
+    short = polygon_edges([np.array([(2.0, 5.0), (-2.0, 5.0), (-2.0, 6.0), (2.0, 6.0)])])
+    scan, pose = wall_scan(short)
+    hits = np.flatnonzero(scan.returns)
+    s, e = int(hits[0]), int(hits[-1])
+    v = run_vertices_on_wall(scan, pose, s, e)
+    assert update_module._continues(v, scan, s, e, pose, SENSOR, cfg) == (False, False)
+    with pytest.raises(ValueError, match="continuation_gate"):
+        ModelConfig(continuation_gate=-1.0)
+    with pytest.raises(ValueError, match="continuation_beams"):
+        ModelConfig(continuation_beams=0)

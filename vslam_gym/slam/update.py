@@ -743,6 +743,52 @@ def _occluded(scan: Scan, beam: int, neighbour: int) -> bool:
     return bool(scan.returns[neighbour] and scan.ranges[neighbour] < scan.ranges[beam])
 
 
+def _continues(
+    v: np.ndarray,
+    scan: Scan,
+    s: int,
+    e: int,
+    pose: np.ndarray,
+    sensor: SensorConfig,
+    config: ModelConfig,
+) -> tuple[bool, bool]:
+    """Whether the beams beyond each end of a run return on that end line's extension.
+
+    ``v`` ``(q, 2)`` are the run's vertices [m] (``v[0]`` and ``v[-1]`` on the rays of its
+    first and last beams ``s`` and ``e``). An end continues when each of the next
+    ``config.continuation_beams`` beams out (``s - 1, s - 2, ...``; ``e + 1, ...``) that
+    lies in the field of view returns a point within ``config.continuation_gate``
+    standard deviations of the range noise, measured along its ray, of the end line's
+    extension (at least the first must). The line then goes on beyond the run: its beams
+    were associated with another line (two model lines of one straight wall, or a line
+    the association cut), and the end vertex only marks where this run stops. See
+    ``ModelConfig.continuation_gate``.
+    """
+    gate = config.continuation_gate * sensor.sigma_range
+    ends = []
+    for end, inner, step, edge in ((0, 1, -1, s), (-1, -2, 1, e)):
+        along = v[end] - v[inner]
+        length = float(np.hypot(*along))
+        out = edge + step * np.arange(1, config.continuation_beams + 1)
+        beams = [b for b in out.tolist() if 0 <= b < scan.n]
+        if length == 0.0 or not beams:
+            ends.append(False)
+            continue
+        normal = np.array([-along[1], along[0]]) / length
+        offset = float((v[end] - pose[:2]) @ normal)
+        on_line = True
+        for b in beams:
+            angle = pose[2] + scan.bearings[b]
+            cosine = float(np.cos(angle) * normal[0] + np.sin(angle) * normal[1])
+            # range along the ray to the line's extension: (v_end - p) . n / (ray . n)
+            expected = offset / cosine if abs(cosine) > 1e-9 else -1.0
+            if not (scan.returns[b] and expected > 0.0 and abs(scan.ranges[b] - expected) <= gate):
+                on_line = False
+                break
+        ends.append(on_line)
+    return ends[0], ends[1]
+
+
 def _run_vertices(
     modeller: _SegmentModeller, groups: list[tuple[int, int]]
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -831,12 +877,16 @@ def _fit_run(
 
     keep = np.ones(len(vertices), dtype=bool)
     existing = (existing_left, existing_right)
+    mu_all, sigma_all = _run_vertices(modeller, local)
     occluded = (_occluded(scan, s, s - 1), _occluded(scan, e, e + 1))
+    if config.continuation_gate > 0.0:
+        # A neighbour beam on the end line's extension: the line goes on, not seen as one.
+        continues = _continues(mu_all.reshape(-1, 2), scan, s, e, pose, sensor, config)
+        occluded = (occluded[0] or continues[0], occluded[1] or continues[1])
     for end, sine in ((0, sines[0]), (-1, sines[-1])):
         if existing[end] and (sine <= limit or occluded[end]):
             keep[end] = False
 
-    mu_all, sigma_all = _run_vertices(modeller, local)
     if _end_correction(config):
         # A new end vertex borders an inserted unobserved unknown line whose other end is
         # the existing vertex of the line it replaces.
