@@ -502,15 +502,17 @@ def test_cycle_returns_stops_an_alternating_alignment_where_it_would_have_stoppe
     assert np.hypot(*(odd.pose[:2] - even.pose[:2])) > 0.25
 
 
-def test_cycle_returns_leaves_converging_alignments_alone():
+@pytest.mark.parametrize("watch", [{"cycle_returns": 1}, {"freeze_on_cycle": True}])
+def test_cycle_handling_leaves_converging_alignments_alone(watch):
     model = model_of(SHAPES["L"])
     points = set_points(scan_of(SHAPES["L"], TRUE), TRUE)
     for offset in OFFSETS:
         prior = TRUE + offset
         base = run(points, model, prior, point_to_line=True)
-        watched = run(points, model, prior, point_to_line=True, cycle_returns=1)
-        assert base.reason == watched.reason == "converged"
+        watched = run(points, model, prior, point_to_line=True, **watch)
+        assert base.reason == watched.reason == "converged" and not watched.frozen
         np.testing.assert_array_equal(watched.pose, base.pose)
+        assert watched.iterations == base.iterations
     with pytest.raises(ValueError, match="cycle_returns"):
         IcpConfig(cycle_returns=-1)
 
@@ -527,18 +529,6 @@ def test_freeze_on_cycle_converges_where_the_association_alternates():
     assert min(near) < 0.002 and max(near) > 0.25
     assert res.rms < 0.5 * endless.rms
     assert not endless.frozen
-
-
-def test_freeze_on_cycle_leaves_converging_alignments_alone():
-    model = model_of(SHAPES["L"])
-    points = set_points(scan_of(SHAPES["L"], TRUE), TRUE)
-    for offset in OFFSETS:
-        prior = TRUE + offset
-        base = run(points, model, prior, point_to_line=True)
-        watched = run(points, model, prior, point_to_line=True, freeze_on_cycle=True)
-        assert base.reason == watched.reason == "converged" and not watched.frozen
-        np.testing.assert_array_equal(watched.pose, base.pose)
-        assert watched.iterations == base.iterations
 
 
 # ----------------------------------------------------------------- pose bound
