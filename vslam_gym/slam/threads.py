@@ -17,6 +17,7 @@ for the duration of a ``with`` block and restores the caller's setting afterward
 from __future__ import annotations
 
 import contextlib
+import numbers
 from typing import Any
 
 __all__ = ["blas_threads", "check_blas_threads"]
@@ -32,9 +33,9 @@ def check_blas_threads(threads: object) -> int | None:
     """
     if threads is None:
         return None
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+    if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
         raise ValueError(f"blas_threads must be None or an integer >= 1, got {threads!r}")
-    return threads
+    return int(threads)
 
 
 def blas_threads(threads: int | None) -> contextlib.AbstractContextManager[Any]:

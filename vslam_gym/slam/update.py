@@ -880,7 +880,7 @@ def _fit_run(
     mu_all, sigma_all = _run_vertices(modeller, local)
     occluded = (_occluded(scan, s, s - 1), _occluded(scan, e, e + 1))
     if config.continuation_gate > 0.0:
-        # A neighbour beam on the end line's extension: the line goes on, not seen as one.
+        # The beams beyond an end lie on its line's extension: the line goes on there.
         continues = _continues(mu_all.reshape(-1, 2), scan, s, e, pose, sensor, config)
         occluded = (occluded[0] or continues[0], occluded[1] or continues[1])
     for end, sine in ((0, sines[0]), (-1, sines[-1])):
