@@ -767,22 +767,20 @@ def _continues(
     gate = config.continuation_gate * sensor.sigma_range
     ends = []
     for end, inner, step, edge in ((0, 1, -1, s), (-1, -2, 1, e)):
-        along = v[end] - v[inner]
-        length = float(np.hypot(*along))
         out = edge + step * np.arange(1, config.continuation_beams + 1)
         beams = [b for b in out.tolist() if 0 <= b < scan.n]
-        if length == 0.0 or not beams:
-            ends.append(False)
-            continue
-        normal = np.array([-along[1], along[0]]) / length
-        offset = float((v[end] - pose[:2]) @ normal)
-        on_line = True
+        on_line = bool(beams)
         for b in beams:
             angle = pose[2] + scan.bearings[b]
-            cosine = float(np.cos(angle) * normal[0] + np.sin(angle) * normal[1])
-            # range along the ray to the line's extension: (v_end - p) . n / (ray . n)
-            expected = offset / cosine if abs(cosine) > 1e-9 else -1.0
-            if not (scan.returns[b] and expected > 0.0 and abs(scan.ranges[b] - expected) <= gate):
+            ray_end = pose[:2] + np.array([np.cos(angle), np.sin(angle)])
+            # the range at which the (unit) ray meets the end line's extension
+            params = _segment_params(pose[:2], ray_end, v[end], v[inner])
+            if not (
+                scan.returns[b]
+                and params is not None
+                and params[0] > 0.0
+                and abs(scan.ranges[b] - params[0]) <= gate
+            ):
                 on_line = False
                 break
         ends.append(on_line)
