@@ -116,6 +116,10 @@ def test_config_from_dict_and_presets():
     assert fast.model == SlamConfig().model and fast.icp == SlamConfig().icp
     for name in ("default", "thesis", "logs"):  # every scan is measured
         assert SlamConfig.preset(name).filter.measurement_min_travel == 0.0
+    # update verification: on by default, off in the other presets (measured no better)
+    assert SlamConfig().filter.verify_heading_sigma == 3.0
+    for name in ("thesis", "logs", "fast"):
+        assert SlamConfig.preset(name).filter.verify_heading_sigma == 0.0
 
 
 # ----------------------------------------------------------------- cached map data
@@ -401,3 +405,74 @@ def test_motion_filter_measures_only_after_enough_motion():
         with pytest.raises(ValueError, match=name):
             SlamConfig.from_dict({"filter": {name: -0.1}})
     assert SlamConfig().filter.measurement_min_travel == 0.0  # every scan by default
+
+
+def _turned_update(config, turn=0.05, moved=0.0):
+    """Map the first objects from (0, 0, 0); then odometry says "no motion" but the robot
+    turned by ``turn`` [rad] and moved ``moved`` [m] forward."""
+    slam = VertexSLAM(SENSOR, config, initial_pose=(0.0, 0.0, 0.0))
+    rng = np.random.default_rng(0)
+    edges = polygon_edges(OBJECTS[:2])
+    noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+    slam.step([0.0, 0.0, 0.0], cast(np.zeros(3), edges, PHI, *noise), PHI)
+    true = np.array([moved, 0.0, turn])
+    return slam.step([0.0, 0.0, 0.0], cast(true, edges, PHI, *noise), PHI)
+
+
+def test_verify_heading_sigma_rejects_turns_the_alignment_does_not_support():
+    def config(verify, pose="icp"):
+        return SlamConfig.from_dict(
+            {"filter": {"verify_heading_sigma": verify, "association_pose": pose}}
+        )
+
+    # The ICP pose says the robot turned by about 0.05 rad: the update turns the heading
+    # within that interval and passes even a tight slack (0.1 prior sigma, 2e-4 rad),
+    # and the result is that of no verification.
+    plain = _turned_update(config(0.0))
+    checked = _turned_update(config(0.1))
+    assert "updated" in {d.outcome for d in checked.decisions}
+    assert 0.003 < plain.pose[2] < 0.05
+    np.testing.assert_array_equal(checked.pose, plain.pose)
+    # Tested at the predicted pose (a 0.01 rad turn still passes the detection test
+    # there), the association claims no turn at all: the update that turns the heading
+    # anyway is rejected, and the pose stays the prediction.
+    predicted = _turned_update(config(0.0, "predicted"), turn=0.01)
+    assert "updated" in {d.outcome for d in predicted.decisions}
+    assert predicted.pose[2] > 5e-4
+    rejected = _turned_update(config(0.1, "predicted"), turn=0.01)
+    outcomes = {d.outcome for d in rejected.decisions}
+    assert "rejected" in outcomes and "updated" not in outcomes
+    np.testing.assert_allclose(rejected.pose, np.zeros(3), atol=1e-12)
+    assert len(rejected.landmarks) == len(predicted.landmarks)
+    with pytest.raises(ValueError, match="verify_heading_sigma"):
+        SlamConfig.from_dict({"filter": {"verify_heading_sigma": -1.0}})
+
+
+def test_verify_position_sigma_rejects_moves_off_the_alignment_segment():
+    def config(verify, pose):
+        return SlamConfig.from_dict(
+            {
+                "filter": {
+                    "verify_position_sigma": verify,
+                    "verify_heading_sigma": 0.0,
+                    "association_pose": pose,
+                }
+            }
+        )
+
+    # The robot moved 0.1 m forward. The update moves the position by 8.5e-5 m along x
+    # (prior position sigma: 1.4e-3 m on the larger axis), 2e-5 m off the segment to the
+    # ICP pose (an offset of 0.13 m, 0.22 rad off the x axis): a slack of 0.03 sigma
+    # (4.3e-5 m) passes it ...
+    plain = _turned_update(config(0.0, "icp"), turn=0.0, moved=0.1)
+    checked = _turned_update(config(0.03, "icp"), turn=0.0, moved=0.1)
+    assert plain.pose[0] > 5e-5
+    assert "updated" in {d.outcome for d in checked.decisions}
+    np.testing.assert_array_equal(checked.pose, plain.pose)
+    # ... but at the predicted pose the segment is a point, and the same move is off it.
+    rejected = _turned_update(config(0.03, "predicted"), turn=0.0, moved=0.1)
+    outcomes = {d.outcome for d in rejected.decisions}
+    assert "rejected" in outcomes and "updated" not in outcomes
+    np.testing.assert_allclose(rejected.pose, np.zeros(3), atol=1e-12)
+    with pytest.raises(ValueError, match="verify_position_sigma"):
+        SlamConfig.from_dict({"filter": {"verify_position_sigma": float("nan")}})
