@@ -344,6 +344,9 @@ def test_episode_log_is_consistent(episode):
     timing = episode_metrics(episode)
     assert timing["step_ms_mean"] == pytest.approx(np.mean(episode.step_ms))
     assert timing["step_ms_median"] == pytest.approx(np.median(episode.step_ms))
+    rejected = [d for d in episode.decisions if d.outcome == "rejected"]
+    assert timing["rejected_updates"] == len(rejected)
+    assert timing["updates"] == sum(d.outcome == "updated" for d in episode.decisions) > 0
 
 
 def _same(a, b):

@@ -590,7 +590,10 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     ``association_precision`` and ``associations``; ``update_precision`` and
     ``updates`` (the same over the associations that updated the map: an
     ``"associated"`` set, matched with too few beams on object lines to update, often
-    lies on another landmark's unknown lines); ``landmarks`` (final count),
+    lies on another landmark's unknown lines); ``rejected_updates`` and
+    ``rejected_precision`` (the associations whose update failed its verification,
+    ``FilterConfig.verify_heading_sigma``, and the fraction of them that were correct);
+    ``landmarks`` (final count),
     ``obstacles_mapped`` (distinct true obstacles among them), ``obstacles``,
     ``landmarks_per_obstacle`` (landmarks / obstacles mapped), ``duplicate_fraction``;
     ``step_ms_median``, ``step_ms_p95``, ``step_ms_mean`` [ms] (the mean is what a
@@ -606,6 +609,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     mapped = len({i for i in final_ids.values() if i != NO_HIT})
     precision, associations = association_precision(log.decisions, ids)
     update_precision, updates = association_precision(log.decisions, ids, ("updated",))
+    rejected_precision, rejected = association_precision(log.decisions, ids, ("rejected",))
     median, p95 = timing_summary(log.step_ms)
     out: dict[str, Any] = {
         "world": log.world_name,
@@ -633,6 +637,8 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
             "associations": associations,
             "update_precision": update_precision,
             "updates": updates,
+            "rejected_updates": rejected,
+            "rejected_precision": rejected_precision,
             "landmarks": len(final.landmarks),
             "obstacles_mapped": mapped,
             "obstacles": len(log.world.obstacles),
