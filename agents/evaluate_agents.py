@@ -139,6 +139,15 @@ class PolicyAgent:
         return np.asarray(action, dtype=np.float32)
 
 
+def frontier_cue(agent: Agent) -> int:
+    """Unknown lines in a policy's ``frontier`` observation (0: none, or not a policy)."""
+    space = getattr(getattr(agent, "model", None), "observation_space", None)
+    spaces = getattr(space, "spaces", None)
+    if not spaces or "frontier" not in spaces:
+        return 0
+    return int(spaces["frontier"].shape[0]) // 4
+
+
 def resolve_agent(agent: str | Path | Agent | Any, seed: int = 0) -> Agent:
     """An agent from a scripted name, a saved model path, a model or an agent.
 
@@ -401,7 +410,11 @@ def evaluate_agent(
         kwargs["max_episode_steps"] = int(max_steps)
     if video:
         kwargs["render_mode"] = "rgb_array"
-    spec = env_id if reward is None else vslam_gym.explore_spec(env_id, reward=reward)
+    wrapper: dict[str, Any] = {} if reward is None else {"reward": reward}
+    cue = frontier_cue(runner)
+    if cue:  # a policy trained with the frontier cue observes it again
+        wrapper["observation"] = {"frontier_count": cue}
+    spec = vslam_gym.explore_spec(env_id, **wrapper) if wrapper else env_id
     env = gym.make(spec, **kwargs)
     horizon = env.spec.max_episode_steps if env.spec is not None else None
     horizon = max_steps or horizon

@@ -35,7 +35,7 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
-from vslam_gym.belief_observation import belief_segments
+from vslam_gym.belief_observation import belief_segments, frontier_targets
 from vslam_gym.control import RouteFollower, RouteFollowerConfig
 
 __all__ = [
@@ -578,23 +578,8 @@ class FrontierAgent:
     def _lines(self, belief: Any, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Target points and distances of every unknown line long enough, nearest first."""
         c = self.config
-        seg = belief_segments(belief, self._threshold)
-        a, b = seg["start"][seg["unknown"]], seg["end"][seg["unknown"]]
-        d = b - a
-        length = np.linalg.norm(d, axis=1)
-        keep = length >= c.min_line_length
-        a, b, d, length = a[keep], b[keep], d[keep], length[keep]
-        if len(a) == 0:
-            return np.zeros((0, 2)), np.zeros(0)
-        # distance to the nearest point of each line; the target point on it
-        t = np.clip(np.einsum("ij,ij->i", position - a, d) / length**2, 0.0, 1.0)
-        distance = np.linalg.norm(a + t[:, None] * d - position, axis=1)
-        near_a = np.linalg.norm(a - position, axis=1) <= np.linalg.norm(b - position, axis=1)
-        offset = np.minimum(0.5 * length, c.max_target_offset) / length
-        fraction = np.where(near_a, offset, 1.0 - offset)
-        points = a + fraction[:, None] * d
-        order = np.argsort(distance, kind="stable")
-        return points[order], distance[order]
+        segments = belief_segments(belief, self._threshold)
+        return frontier_targets(segments, position, c.min_line_length, c.max_target_offset)
 
     def _unvisited(self, points: np.ndarray, distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Drop the points within ``visited_radius`` of a reached or abandoned target."""

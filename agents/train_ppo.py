@@ -70,22 +70,35 @@ class PpoSettings:
     cnn_output_dim: int = 128
 
 
-def wrapper_kwargs(reward: str | None, slam_preset: str | None) -> dict[str, Any]:
+def wrapper_kwargs(
+    reward: str | None, slam_preset: str | None, frontier_cue: int = 0
+) -> dict[str, Any]:
     """``SlamWrapper`` arguments replacing the registration's: those given (not None).
 
-    ``reward``: a reward preset name; ``slam_preset``: a ``SlamConfig`` preset name.
+    ``reward``: a reward preset name; ``slam_preset``: a ``SlamConfig`` preset name;
+    ``frontier_cue``: > 0 adds the ``frontier`` observation of that many unknown lines
+    (``BeliefObservationConfig.frontier_count``).
     """
     given = {"reward": reward, "slam_config": slam_preset}
-    return {k: v for k, v in given.items() if v is not None}
+    kwargs = {k: v for k, v in given.items() if v is not None}
+    if frontier_cue > 0:
+        kwargs["observation"] = {"frontier_count": int(frontier_cue)}
+    return kwargs
 
 
-def make_env_fn(env_id: str, seed: int, reward: str | None, slam_preset: str | None = None) -> Any:
+def make_env_fn(
+    env_id: str,
+    seed: int,
+    reward: str | None,
+    slam_preset: str | None = None,
+    frontier_cue: int = 0,
+) -> Any:
     """A picklable constructor of one training environment (for ``make_vec_env``).
 
-    ``reward`` and ``slam_preset`` (a ``SlamConfig`` preset name) replace the
-    registration's wrapper arguments when given.
+    ``reward``, ``slam_preset`` (a ``SlamConfig`` preset name) and ``frontier_cue``
+    replace the registration's wrapper arguments when given (:func:`wrapper_kwargs`).
     """
-    spec = vslam_gym.explore_spec(env_id, **wrapper_kwargs(reward, slam_preset))
+    spec = vslam_gym.explore_spec(env_id, **wrapper_kwargs(reward, slam_preset, frontier_cue))
 
     def make() -> gym.Env:
         return gym.make(spec)
@@ -111,6 +124,7 @@ def train(
     imitation_steps: int = 12_000,
     imitation_epochs: int = 10,
     imitation_rounds: int = 1,
+    frontier_cue: int = 0,
 ) -> Path:
     """Train PPO and save ``out/final_model.zip``; returns its path.
 
@@ -140,6 +154,8 @@ def train(
         imitation_epochs: behaviour-cloning passes over the demonstrations per round.
         imitation_rounds: 1: behaviour cloning; more: DAgger rounds after it, the clone
             driving and the agent labelling (:func:`agents.imitation.clone_agent`).
+        frontier_cue: > 0: the policy also observes that many nearest unknown lines of
+            the map (the wrapper's ``frontier`` key); 0: the registration's observation.
     """
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
@@ -157,7 +173,7 @@ def train(
         if imitate not in SCRIPTED_AGENTS:
             raise ValueError(f"--imitate must be one of {sorted(SCRIPTED_AGENTS)}, got {imitate!r}")
     vec_env = make_vec_env(
-        make_env_fn(env_id, seed, reward, slam_preset),
+        make_env_fn(env_id, seed, reward, slam_preset, frontier_cue),
         n_envs=n_envs,
         seed=seed,
         monitor_dir=str(out / "monitor"),
@@ -207,7 +223,7 @@ def train(
             rounds=imitation_rounds,
             epochs=imitation_epochs,
             workers=n_envs if subprocesses else 1,
-            wrapper_kwargs=wrapper_kwargs(reward, slam_preset),
+            wrapper_kwargs=wrapper_kwargs(reward, slam_preset, frontier_cue),
             gamma=settings.gamma,
             work_dir=out,
             seed=seed,
@@ -232,6 +248,7 @@ def train(
         "seed": seed,
         "reward": reward,
         "slam_preset": slam_preset,
+        "frontier_cue": frontier_cue,
         "settings": asdict(settings),
         "vslam_gym": vslam_gym.__version__,
     }
@@ -278,6 +295,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--imitation-rounds", type=int, default=1, help="1: cloning; more: DAgger rounds"
     )
+    parser.add_argument(
+        "--frontier-cue",
+        type=int,
+        default=0,
+        help="observe this many nearest unknown lines of the map (default 0: off)",
+    )
     args = parser.parse_args(argv)
     settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
     path = train(
@@ -297,6 +320,7 @@ def main(argv: list[str] | None = None) -> int:
         imitation_steps=args.imitation_steps,
         imitation_epochs=args.imitation_epochs,
         imitation_rounds=args.imitation_rounds,
+        frontier_cue=args.frontier_cue,
     )
     config = json.loads((args.out / "train_config.json").read_text())
     print(

@@ -15,9 +15,11 @@ import vslam_gym
 from vslam_gym.belief_observation import (
     BeliefObservationConfig,
     BeliefRaster,
+    FrontierCue,
     PoseUncertainty,
     belief_segments,
     boundary_cells,
+    frontier_targets,
 )
 from vslam_gym.belief_reward import (
     BeliefReward,
@@ -323,6 +325,60 @@ def test_raster_is_egocentric_heading_up():
     assert 0 < levels[0] < levels[-1]  # vertex 0 at the left (sd 0.1 m) ... vertex 1 (0.2 m)
     assert levels[0] == pytest.approx(1 + 254 * 0.1, abs=3)
     assert levels[-1] == pytest.approx(1 + 254 * 0.2, abs=3)
+
+
+def test_frontier_targets_nearest_first_with_offset_on_long_lines():
+    seg = _segments(
+        ((3, -1), (3, 1)),
+        ((0, 5), (0, 25)),
+        ((1, 1), (1, 1.2)),
+        ((-2, 0), (-2, 2)),
+        unknown=[1, 1, 1, 0],
+    )
+    points, distances = frontier_targets(seg, np.zeros(2), min_length=0.3, max_offset=3.0)
+    # the 0.2 m line is too short, the object line is no frontier
+    assert points.shape == (2, 2)
+    np.testing.assert_allclose(distances, [3.0, 5.0])
+    np.testing.assert_allclose(points[0], [3.0, 0.0])  # a short line: its midpoint
+    np.testing.assert_allclose(points[1], [0.0, 8.0])  # 3 m along from the nearer end
+    empty, none = frontier_targets(seg, np.zeros(2), min_length=50.0, max_offset=3.0)
+    assert empty.shape == (0, 2) and none.shape == (0,)
+
+
+def test_frontier_cue_in_the_robot_frame():
+    config = BeliefObservationConfig(frontier_count=3, frontier_range=10.0)
+    cue = FrontierCue(config)
+    seg = _segments(((3, -1), (3, 1)), ((-1, 4), (1, 4)), unknown=[1, 1])
+    ahead = cue.observe(seg, np.array([0.0, 0.0, 0.0])).reshape(3, 4)
+    np.testing.assert_allclose(ahead[0], [1, 1, 0, 0.3], atol=1e-6)  # 3 m straight ahead
+    np.testing.assert_allclose(ahead[1], [1, 0, 1, 0.4], atol=1e-6)  # 4 m to the left
+    assert not ahead[2].any()  # no third frontier
+    # heading +y: the first line is now to the right, the second straight ahead
+    turned = cue.observe(seg, np.array([0.0, 0.0, math.pi / 2])).reshape(3, 4)
+    np.testing.assert_allclose(turned[0], [1, 0, -1, 0.3], atol=1e-6)
+    np.testing.assert_allclose(turned[1], [1, 1, 0, 0.4], atol=1e-6)
+    far = cue.observe(seg, np.array([-50.0, 0.0, 0.0])).reshape(3, 4)
+    assert far[0, 3] == 1.0  # clipped
+    assert cue.space().contains(far.ravel())
+    assert FrontierCue(BeliefObservationConfig(frontier_count=0)).size == 0
+    with pytest.raises(ValueError, match="frontier_count"):
+        BeliefObservationConfig(frontier_count=-1)
+    with pytest.raises(ValueError, match="frontier_range"):
+        BeliefObservationConfig(frontier_range=0.0)
+
+
+def test_frontier_key_is_an_option():
+    env = gym.make("VSlam/ExploreSmall-v0")
+    assert "frontier" not in env.observation_space.spaces
+    env.close()
+    env = gym.make(
+        vslam_gym.explore_spec("VSlam/ExploreSmall-v0", observation={"frontier_count": 2})
+    )
+    assert env.observation_space["frontier"].shape == (8,)
+    observations, _, _ = _rollout(env, seed=3, n=40)
+    assert all(env.observation_space.contains(obs) for obs in observations)
+    assert observations[-1]["frontier"][0] == 1.0, "the map has unknown lines after 40 steps"
+    env.close()
 
 
 def test_pose_uncertainty_features_in_the_robot_frame():

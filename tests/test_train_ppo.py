@@ -91,3 +91,20 @@ def test_make_env_fn_applies_the_slam_preset():
         assert plain.get_wrapper_attr("slam").config.filter.measurement_min_travel == 0.0
     finally:
         plain.close()
+
+
+def test_a_policy_trained_with_the_frontier_cue_is_evaluated_with_it(tmp_path):
+    from stable_baselines3 import PPO
+
+    settings = PpoSettings(n_steps=32, batch_size=32, n_epochs=1, net_arch=(16,), cnn_output_dim=16)
+    path = train(
+        "VSlam/ExploreSmall-v0", timesteps=32, out=tmp_path, n_envs=1, seed=0,
+        settings=settings, checkpoint_every=0, progress_bar=False, subprocesses=False,
+        frontier_cue=2,
+    )  # fmt: skip
+    assert json.loads((tmp_path / "train_config.json").read_text())["frontier_cue"] == 2
+    assert PPO.load(path, device="cpu").observation_space["frontier"].shape == (8,)
+    summary = evaluate_agent(
+        path, "VSlam/ExploreSmall-v0", episodes=1, seed=0, max_steps=4, progress=False
+    )
+    assert summary["per_episode"][0]["steps"] == 4

@@ -1,12 +1,14 @@
 """Observations computed from the SLAM belief alone (for :class:`vslam_gym.SlamWrapper`).
 
-Three pieces, each a small class with ``space()`` and ``observe(...)``:
+Four pieces, each a small class with ``space()`` and ``observe(...)``:
 
 - :class:`PoseUncertainty`: the 3x3 pose covariance as seven well-scaled numbers in the
   robot frame;
 - :class:`BeliefRaster`: an egocentric ``uint8`` image ``(3, H, W)`` of the landmark map
   around the estimated pose (object lines, unknown lines, vertex uncertainty);
-- :class:`SlamStatus`: log-scaled landmark count and steps since the last association.
+- :class:`SlamStatus`: log-scaled landmark count and steps since the last association;
+- :class:`FrontierCue`: where the nearest unknown lines of the map (the frontiers) lie,
+  robot frame (:func:`frontier_targets` chooses the point to head for on each line).
 
 Nothing here sees ground truth: the inputs are a :class:`vslam_gym.slam.filter.Belief`
 and counters kept by the wrapper.
@@ -38,6 +40,18 @@ class BeliefObservationConfig:
             [log m^2 or log rad^2].
         log_ceiling: upper clip of those log-variances.
         status_ceiling: upper bound of the ``log1p`` counters of :class:`SlamStatus`.
+        frontier_count: number of unknown lines :class:`FrontierCue` reports (nearest
+            first); 0 (the default) leaves the ``frontier`` key out of the observation.
+            An option: with 3, a PPO policy (behaviour clone of the ``frontier``
+            heuristic, then PPO, seed 0) measured 1.49x random coverage, within the
+            spread of the same recipe without it (1.19-1.76x over three seeds); the
+            clone alone was no better (0.92x against 0.93x).
+        frontier_range: distance [m] that :class:`FrontierCue` scales to 1 (farther
+            targets read 1).
+        frontier_min_length: unknown lines shorter than this [m] are not frontiers.
+        frontier_max_offset: on an unknown line longer than twice this [m] the target
+            point is this far along it from its end nearest the robot, not its midpoint
+            (a shadow boundary can run out to the lidar's maximum range).
     """
 
     raster_size: int = 64
@@ -46,11 +60,24 @@ class BeliefObservationConfig:
     log_floor: float = -20.0
     log_ceiling: float = 10.0
     status_ceiling: float = 20.0
+    frontier_count: int = 0
+    frontier_range: float = 16.0
+    frontier_min_length: float = 0.3
+    frontier_max_offset: float = 3.0
 
     def __post_init__(self) -> None:
         if int(self.raster_size) != self.raster_size or self.raster_size < 2:
             raise ValueError(f"raster_size must be an integer >= 2, got {self.raster_size!r}")
-        for name in ("raster_cell", "uncertainty_scale", "status_ceiling"):
+        if int(self.frontier_count) != self.frontier_count or self.frontier_count < 0:
+            raise ValueError(f"frontier_count must be an integer >= 0, got {self.frontier_count!r}")
+        for name in (
+            "raster_cell",
+            "uncertainty_scale",
+            "status_ceiling",
+            "frontier_range",
+            "frontier_min_length",
+            "frontier_max_offset",
+        ):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"BeliefObservationConfig.{name} must be > 0, got {value!r}")
@@ -308,3 +335,90 @@ class SlamStatus:
         """The two counters as float32."""
         values = np.log1p([float(landmarks), float(steps_since_association)])
         return np.minimum(values, self.config.status_ceiling).astype(np.float32)
+
+
+def frontier_targets(
+    segments: dict[str, np.ndarray],
+    position: np.ndarray,
+    min_length: float,
+    max_offset: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A point to head for on every unknown line at least ``min_length`` long, nearest first.
+
+    Unknown lines separate observed free space from unobserved space: driving to one
+    looks behind it. The target point is the line's midpoint, or on a line longer than
+    ``2 max_offset`` the point ``max_offset`` along it from its end nearest ``position``.
+
+    Args:
+        segments: :func:`belief_segments` of a belief (world frame).
+        position: ``(2,)`` the robot's estimated position [m], world frame.
+        min_length: shorter unknown lines are ignored [m].
+        max_offset: see above [m].
+
+    Returns:
+        ``points`` ``(m, 2)`` [m], world frame, and ``distances`` ``(m,)`` [m] from
+        ``position`` to each line (point-to-segment), sorted by distance (stable).
+    """
+    unknown = np.asarray(segments["unknown"], dtype=bool)
+    a, b = segments["start"][unknown], segments["end"][unknown]
+    d = b - a
+    length = np.linalg.norm(d, axis=1)
+    keep = length >= min_length
+    a, b, d, length = a[keep], b[keep], d[keep], length[keep]
+    if len(a) == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    position = np.asarray(position, dtype=float)
+    t = np.clip(np.einsum("ij,ij->i", position - a, d) / length**2, 0.0, 1.0)
+    distance = np.linalg.norm(a + t[:, None] * d - position, axis=1)
+    near_a = np.linalg.norm(a - position, axis=1) <= np.linalg.norm(b - position, axis=1)
+    offset = np.minimum(0.5 * length, max_offset) / length
+    fraction = np.where(near_a, offset, 1.0 - offset)
+    points = a + fraction[:, None] * d
+    order = np.argsort(distance, kind="stable")
+    return points[order], distance[order]
+
+
+class FrontierCue:
+    """The nearest frontiers of the map (unknown lines), robot frame: ``(4 K,)`` float32.
+
+    For the ``k``-th nearest unknown line (``k = 0 .. K-1``, ``K = frontier_count``;
+    :func:`frontier_targets` picks the line's target point and sorts by the distance
+    to the line):
+
+    | Index      | Content                                                        |
+    |------------|----------------------------------------------------------------|
+    | `4k`       | 1 if there is a ``k``-th frontier, else 0 (and the rest 0)     |
+    | `4k + 1`   | cosine of the target point's bearing from the estimated lidar  |
+    |            | heading (1: straight ahead)                                   |
+    | `4k + 2`   | sine of that bearing (> 0: to the left)                        |
+    | `4k + 3`   | distance to the line / ``frontier_range``, at most 1           |
+
+    A belief-only cue: the same frontiers a map-reading heuristic heads for, in a form
+    a small network reads directly (the raster shows them too, but only within 8 m and
+    as pixels).
+    """
+
+    def __init__(self, config: BeliefObservationConfig) -> None:
+        self.config = config
+        self.size = 4 * int(config.frontier_count)
+
+    def space(self) -> spaces.Box:
+        """``Box(-1, 1, (4 K,), float32)``."""
+        return spaces.Box(-1.0, 1.0, shape=(self.size,), dtype=np.float32)
+
+    def observe(self, segments: dict[str, np.ndarray], pose: np.ndarray) -> np.ndarray:
+        """The cue for ``segments`` (:func:`belief_segments`) seen from the lidar ``pose``."""
+        c = self.config
+        out = np.zeros((int(c.frontier_count), 4))
+        points, distances = frontier_targets(
+            segments, pose[:2], c.frontier_min_length, c.frontier_max_offset
+        )
+        k = min(len(points), out.shape[0])
+        if k:
+            offset = points[:k] - pose[:2]
+            bearing = np.arctan2(offset[:, 1], offset[:, 0]) - pose[2]
+            out[:k, 0] = 1.0
+            out[:k, 1] = np.cos(bearing)
+            out[:k, 2] = np.sin(bearing)
+            out[:k, 3] = np.minimum(distances[:k] / c.frontier_range, 1.0)
+        return out.ravel().astype(np.float32)

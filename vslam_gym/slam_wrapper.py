@@ -14,6 +14,7 @@ from gymnasium.error import ResetNeeded
 from vslam_gym.belief_observation import (
     BeliefObservationConfig,
     BeliefRaster,
+    FrontierCue,
     PoseUncertainty,
     SlamStatus,
     belief_segments,
@@ -79,6 +80,12 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     | `status`           | `(2,)`        | float32 | :class:`SlamStatus`: ``log1p`` of the   |
     |                    |               |         | landmark count and of the steps since   |
     |                    |               |         | the last association                    |
+    | `frontier`         | `(4 K,)`      | float32 | only with ``observation={"frontier_     |
+    |                    |               |         | count": K}`` (K > 0): :class:`Frontier- |
+    |                    |               |         | Cue`, the K nearest unknown lines of the|
+    |                    |               |         | map, each as present flag, cos / sin of |
+    |                    |               |         | the bearing to its target point,        |
+    |                    |               |         | distance / 16 m                         |
 
     ## Rewards
 
@@ -134,7 +141,8 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     ## Version History
 
-    - v0: initial version.
+    - v0: initial version (the optional ``frontier`` key was added before the first
+      release, 2026-11-25).
     """
 
     def __init__(
@@ -173,15 +181,17 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._pose_features = PoseUncertainty(observation)
         self._raster = BeliefRaster(observation, threshold)
         self._status = SlamStatus(observation)
+        self._frontier = FrontierCue(observation)
         n_beams = base.lidar_spec.n_beams
-        self.observation_space = spaces.Dict(
-            {
-                "scan": spaces.Box(0.0, 1.0, shape=(n_beams,), dtype=np.float32),
-                "pose_uncertainty": self._pose_features.space(),
-                "belief_map": self._raster.space(),
-                "status": self._status.space(),
-            }
-        )
+        keys = {
+            "scan": spaces.Box(0.0, 1.0, shape=(n_beams,), dtype=np.float32),
+            "pose_uncertainty": self._pose_features.space(),
+            "belief_map": self._raster.space(),
+            "status": self._status.space(),
+        }
+        if self._frontier.size:
+            keys["frontier"] = self._frontier.space()
+        self.observation_space = spaces.Dict(keys)
         self._reward = BeliefReward(self.reward_config)
         self._slam: VertexSLAM | None = None
         self._belief: Belief | None = None
@@ -250,12 +260,15 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _observe(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         belief = self._belief
         scan = np.clip(obs["scan"] / self.sensor.max_range, 0.0, 1.0).astype(np.float32)
-        return {
+        out = {
             "scan": scan,
             "pose_uncertainty": self._pose_features.observe(belief.pose, belief.pose_cov),
             "belief_map": self._raster.observe(belief, self._segments),
             "status": self._status.observe(len(belief.landmarks), self._steps_since_association),
         }
+        if self._frontier.size:
+            out["frontier"] = self._frontier.observe(self._segments, belief.pose)
+        return out
 
     def _info(
         self, info: dict[str, Any], rewards: dict[str, float], env_reward: float
