@@ -372,6 +372,31 @@ def test_bad_shapes_raise(points, pose):
         align(points, wall_with_unknown_end(1.0), pose)
 
 
+def test_max_correspondence_distance_ignores_what_the_model_does_not_hold():
+    """The set also sees clutter 2 m in front of the modelled L: it pulls a plain ICP
+    off; with outlier rejection the clutter is not used and the offset is recovered."""
+    model = model_of(SHAPES["L"])
+    prior = TRUE + OFFSETS[0]
+    clutter_true = np.stack([np.linspace(-2.0, 0.0, 40), np.linspace(3.0, 3.5, 40)], axis=1)
+    # the clutter as measured from TRUE, then placed in the world at the prior pose
+    rel = clutter_true - TRUE[:2]
+    r, b = np.hypot(rel[:, 0], rel[:, 1]), np.arctan2(rel[:, 1], rel[:, 0]) - TRUE[2]
+    clutter = polar_to_cartesian(r, b, prior)
+    points = np.vstack([set_points(scan_of(SHAPES["L"], TRUE), prior), clutter])
+    plain = run(points, model, prior)
+    dist, dtheta = pose_error(plain.pose)
+    assert dist > 0.1 or dtheta > np.deg2rad(2.0), (dist, np.rad2deg(dtheta))
+    robust = run(points, model, prior, max_correspondence_distance=0.5)
+    dist, dtheta = pose_error(robust.pose)
+    assert dist < CM and dtheta < HALF_DEG, (dist, np.rad2deg(dtheta), robust)
+    assert robust.n_used == points.shape[0] - clutter.shape[0]
+    # a large threshold changes nothing on a set the model holds
+    scan = scan_of(SHAPES["L"], TRUE)
+    exact = run(set_points(scan, prior), model, prior)
+    loose = run(set_points(scan, prior), model, prior, max_correspondence_distance=5.0)
+    np.testing.assert_array_equal(exact.pose, loose.pose)
+
+
 def test_bad_model_limits_and_config_raise():
     with pytest.raises(ValueError, match="LandmarkModel"):
         align(WALL_POINTS, np.zeros((3, 2)), ORIGIN)
@@ -389,6 +414,8 @@ def test_bad_model_limits_and_config_raise():
         {"tol_rotation": np.nan},
         {"unknown_threshold": 1.5},
         {"max_condition": 0.5},
+        {"max_correspondence_distance": 0.0},
+        {"max_correspondence_distance": np.nan},
     ):
         with pytest.raises(ValueError):
             IcpConfig(**bad)
