@@ -287,6 +287,54 @@ def test_icp_stop_beyond_gate_saves_iterations_without_changing_decisions(monkey
         SlamConfig.from_dict({"filter": {"icp_stop_beyond_gate": -1.0}})
 
 
+def test_icp_retry_rescues_an_alignment_pulled_off_beyond_the_gate(monkeypatch):
+    import dataclasses
+
+    import vslam_gym.slam.filter as filter_module
+
+    def drive(config, pulled_off, steps=12, from_step=8):
+        """The synthetic loop's first steps (exact odometry); from ``from_step`` on,
+        optionally, every per-landmark ICP result ends 1 m off (as a set that sees far
+        more than a partial model and is pulled onto it)."""
+        original = filter_module.align_many
+        active = [False]
+
+        def pulled(*args, **kwargs):
+            out = original(*args, **kwargs)
+            if not active[0]:
+                return out
+            return [dataclasses.replace(r, pose=r.pose + np.array([1.0, 0.0, 0.0])) for r in out]
+
+        monkeypatch.setattr(filter_module, "align_many", pulled if pulled_off else original)
+        true = circle_route()
+        slam = VertexSLAM(SENSOR, config, initial_pose=true[0])
+        rng = np.random.default_rng(0)
+        noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+        outcomes, reasons = [], []
+        for k in range(1, steps):
+            active[0] = k >= from_step
+            belief = slam.step(
+                increments_between(true[k - 1], true[k]), cast(true[k], EDGES, PHI, *noise), PHI
+            )
+            if k >= from_step:
+                outcomes += [d.outcome for d in belief.decisions]
+                reasons += [c[1] for d in belief.decisions for c in d.candidates]
+        return belief, outcomes, reasons
+
+    clean, outcomes, _ = drive(_gated_config(), pulled_off=False)
+    assert "updated" in outcomes
+    off, outcomes, reasons = drive(_gated_config(), pulled_off=True)
+    assert "updated" not in outcomes and "gated" in reasons
+    retry = _gated_config(icp_retry_correspondence_distance=0.5)
+    rescued, outcomes, reasons = drive(retry, pulled_off=True)
+    assert "updated" in outcomes and "retried" in reasons and "gated" not in reasons
+    # the retry (every point within 0.5 m of the model) finds the plain alignment again
+    np.testing.assert_allclose(rescued.pose, clean.pose, atol=1e-6)
+    assert len(rescued.landmarks) == len(clean.landmarks) < len(off.landmarks)
+    with pytest.raises(ValueError, match="icp_retry_correspondence_distance"):
+        SlamConfig.from_dict({"filter": {"icp_retry_correspondence_distance": -1.0}})
+
+
 def test_creation_overlap_distance_keeps_a_gated_reobservation_from_duplicating():
     plain = _kidnapped_update(_gated_config())
     assert "created" in {d.outcome for d in plain.decisions}

@@ -442,6 +442,15 @@ class FilterConfig:
             0.02 m (protocol of ``creation_overlap_distance``): ATE 0.32 / 0.14 / 0.10
             / 0.22 -> 0.23 / 0.13 / 0.12 / 0.32 m, better on two worlds, worse on
             ``curved`` and ``house``. Not the default.
+        icp_retry_correspondence_distance: a candidate whose ICP result fails the
+            plausibility gate is aligned once more from the predicted pose with
+            ``IcpConfig.max_correspondence_distance`` set to this [m] (points farther
+            from the model are not used), and that result is gated instead. Aimed at
+            revisits: a set that sees far more than an old, partial model is pulled
+            off by the points the model does not hold (``house`` seed 7: every
+            alignment to the start's landmarks at the loop's end was gated, headings
+            1.3 rad off). Results that pass the gate are unchanged. 0 (the default):
+            no retry.
         icp_stop_beyond_gate: a per-landmark ICP stops (reason ``"out_of_bound"``) after
             the first step that takes its pose beyond this many times the plausibility
             gate (``icp_max_pose_mahalanobis``, same covariance); such a result fails
@@ -532,6 +541,7 @@ class FilterConfig:
     creation_overlap_distance: float = 0.0
     detection_model_sigma: float = 0.0
     icp_stop_beyond_gate: float = 0.0
+    icp_retry_correspondence_distance: float = 0.0
     measurement_min_travel: float = 0.0
     measurement_min_turn: float = 0.0
     create_beside_candidates: bool = True
@@ -558,6 +568,7 @@ class FilterConfig:
                 raise ValueError(f"FilterConfig.{name} must be finite and >= 0, got {value!r}")
         for name in (
             "icp_stop_beyond_gate",
+            "icp_retry_correspondence_distance",
             "detection_model_sigma",
             "creation_overlap_distance",
             "verify_heading_sigma",

@@ -46,6 +46,7 @@ from vslam_gym.slam.icp import (
     IcpResult,
     LineGeometry,
     PoseBound,
+    align,
     align_many,
     candidate_landmarks,
     line_geometry,
@@ -262,7 +263,9 @@ class SetDecision:
             is the ICP's stop reason, ``"far"`` when not aligned, or ``"gated"`` when the
             ICP pose failed the plausibility gate (``FilterConfig.icp_max_pose_mahalanobis``;
             with ``icp_gate_fallback`` the predicted pose was tested instead, else the
-            statistics are NaN).
+            statistics are NaN), or ``"retried"`` when it failed the gate and the
+            retry with outlier rejection passed it
+            (``FilterConfig.icp_retry_correspondence_distance``).
     """
 
     first: int
@@ -725,9 +728,22 @@ class VertexSLAM:
             white = np.linalg.solve(chol, d)
             m2 = float(white @ white)
             test_pose, reason = res.pose, res.reason
-            if gate and self._gate_distance(lms[c], d, gate_cov, chol_gate) > (
+            gated = gate and self._gate_distance(lms[c], d, gate_cov, chol_gate) > (
                 cfg.icp_max_pose_mahalanobis
-            ):
+            )
+            if gated and cfg.icp_retry_correspondence_distance > 0.0:
+                retry = self._robust_alignment(work, c)
+                d_retry = retry.pose - pose
+                d_retry[2] = wrap_angle(d_retry[2])
+                if (
+                    np.all(np.isfinite(d_retry))
+                    and self._gate_distance(lms[c], d_retry, gate_cov, chol_gate)
+                    <= cfg.icp_max_pose_mahalanobis
+                ):
+                    gated, d, test_pose, reason = False, d_retry, retry.pose, "retried"
+                    white = np.linalg.solve(chol, d)
+                    m2 = float(white @ white)
+            if gated:
                 if not cfg.icp_gate_fallback:
                     tried[c] = (lms[c].id, "gated", np.nan, np.nan, False)
                     continue
@@ -784,6 +800,25 @@ class VertexSLAM:
             poses = {c: p for c, p, reason in tested if reason != "gated"}
             overlap = self._overlap(scan, work, poses)
         return best, done, overlap
+
+    def _robust_alignment(self, work: _SetWork, c: int) -> IcpResult:
+        """The set aligned to candidate ``c`` again, ignoring points far from the model.
+
+        ``FilterConfig.icp_retry_correspondence_distance`` becomes the ICP's
+        ``max_correspondence_distance``; the alignment starts at the predicted pose.
+        """
+        icp = replace(
+            self.config.icp,
+            max_correspondence_distance=self.config.filter.icp_retry_correspondence_distance,
+        )
+        return align(
+            work.points,
+            self._model(work.landmarks[c]),
+            self._mu[:3],
+            icp,
+            self.sensor.max_range,
+            self.sensor.half_fov,
+        )
 
     def _overlap(self, scan: Scan, work: _SetWork, poses: dict) -> _Overlap | None:
         """The aligned candidate whose object lines the set's points lie closest to.
