@@ -29,6 +29,7 @@ import importlib.util
 import json
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -71,7 +72,7 @@ class PpoSettings:
 
 
 def wrapper_kwargs(
-    reward: str | None, slam_preset: str | None, frontier_cue: int = 0
+    reward: str | Mapping[str, float] | None, slam_preset: str | None, frontier_cue: int = 0
 ) -> dict[str, Any]:
     """``SlamWrapper`` arguments replacing the registration's: those given (not None).
 
@@ -89,7 +90,7 @@ def wrapper_kwargs(
 def make_env_fn(
     env_id: str,
     seed: int,
-    reward: str | None,
+    reward: str | Mapping[str, float] | None,
     slam_preset: str | None = None,
     frontier_cue: int = 0,
 ) -> Any:
@@ -112,7 +113,7 @@ def train(
     out: Path,
     n_envs: int = 2,
     seed: int = 0,
-    reward: str | None = None,
+    reward: str | Mapping[str, float] | None = None,
     settings: PpoSettings | None = None,
     checkpoint_every: int = 10_000,
     tensorboard: str | None = None,
@@ -134,7 +135,8 @@ def train(
         out: output directory (created).
         n_envs: parallel environments.
         seed: seed of PPO and of the environments (environment ``i``: ``seed + i``).
-        reward: a reward preset name (``default``, ``d_opt``, ``coverage``); None keeps
+        reward: a reward preset name (``default``, ``d_opt``, ``coverage``) or a mapping
+            of ``BeliefRewardConfig`` weights (e.g. ``{"collision": 10}``); None keeps
             the registration's.
         settings: PPO hyper-parameters.
         checkpoint_every: save a checkpoint every this many total steps (0: never).
@@ -271,7 +273,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timesteps", type=int, default=50_000, help="total env steps")
     parser.add_argument("--n-envs", type=int, default=2, help="parallel environments")
     parser.add_argument("--seed", type=int, default=0, help="PPO and environment seed")
-    parser.add_argument("--reward", default=None, help="reward preset (default|d_opt|coverage)")
+    parser.add_argument(
+        "--reward",
+        default=None,
+        help="reward preset (default|d_opt|coverage) or JSON weights, e.g. '{\"collision\": 10}'",
+    )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--checkpoint-every", type=int, default=10_000, help="steps, 0: never")
     parser.add_argument("--tensorboard", default=None, help="TensorBoard log directory")
@@ -302,6 +308,12 @@ def main(argv: list[str] | None = None) -> int:
         help="observe this many nearest unknown lines of the map (default 0: off)",
     )
     args = parser.parse_args(argv)
+    reward = args.reward
+    if reward is not None and reward.lstrip().startswith("{"):
+        try:
+            reward = json.loads(reward)
+        except json.JSONDecodeError as err:
+            parser.error(f"--reward is neither a preset name nor valid JSON: {err}")
     settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
     path = train(
         args.env,
@@ -309,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
         args.out,
         n_envs=args.n_envs,
         seed=args.seed,
-        reward=args.reward,
+        reward=reward,
         settings=settings,
         checkpoint_every=args.checkpoint_every,
         tensorboard=args.tensorboard,

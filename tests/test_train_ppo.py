@@ -74,6 +74,29 @@ def test_command_line_with_another_reward_preset(tmp_path, capsys):
     assert monitor.startswith("#") and vslam_gym.__version__ == config["vslam_gym"]
 
 
+def test_reward_weights_as_json(tmp_path):
+    from agents.train_ppo import make_env_fn
+
+    code = main(
+        [
+            "--env", "VSlam/ExploreSmall-v0", "--timesteps", "64", "--n-envs", "1",
+            "--n-steps", "64", "--batch-size", "32", "--reward", '{"collision": 10}',
+            "--checkpoint-every", "0", "--no-progress", "--out", str(tmp_path),
+            "--max-minutes", "0",
+        ]
+    )  # fmt: skip
+    assert code == 0
+    assert json.loads((tmp_path / "train_config.json").read_text())["reward"] == {"collision": 10}
+    env = make_env_fn("VSlam/ExploreSmall-v0", 0, {"collision": 10})()
+    try:
+        config = env.get_wrapper_attr("reward_config")
+        assert config.collision == 10 and config.new_boundary == 1.0  # others: the defaults
+    finally:
+        env.close()
+    with pytest.raises(SystemExit):
+        main(["--out", str(tmp_path / "bad"), "--reward", "{collision: 10}"])
+
+
 def test_make_env_fn_applies_the_slam_preset():
     from agents.train_ppo import make_env_fn
 

@@ -115,6 +115,10 @@ class IcpConfig:
             partial model holds, e.g. a whole room against a landmark of one corner,
             otherwise pulls every point onto the model, and the alignment ends far from
             the overlap (measured on ``house``: headings 1.3 rad off at a revisit).
+            Measured at 0.5 m (``vslam-gym evaluate``, seeds 0-9): position ATE 0.213 /
+            0.129 / 0.102 / 0.249 -> 0.202 / 0.143 / 0.099 / 0.239 m (single_landmark /
+            small / curved / house), ``house`` final error 0.315 -> 0.402 m; Radish
+            logs: Intel 0.61 -> 0.56 m, ACES 1.36 -> 1.51 m. Not in any preset.
     """
 
     max_iterations: int = 50
