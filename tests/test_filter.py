@@ -331,6 +331,12 @@ def test_icp_retry_rescues_an_alignment_pulled_off_beyond_the_gate(monkeypatch):
     # the retry (every point within 0.5 m of the model) finds the plain alignment again
     np.testing.assert_allclose(rescued.pose, clean.pose, atol=1e-6)
     assert len(rescued.landmarks) == len(clean.landmarks) < len(off.landmarks)
+    # a retry that keeps no point stops at the predicted pose: that is no evidence
+    starved = _gated_config(icp_retry_correspondence_distance=1e-4)
+    _, outcomes, reasons = drive(starved, pulled_off=True)
+    assert "updated" not in outcomes and "retried" not in reasons
+    with pytest.raises(ValueError, match="icp_retry_min_fraction"):
+        SlamConfig.from_dict({"filter": {"icp_retry_min_fraction": 1.5}})
     with pytest.raises(ValueError, match="icp_retry_correspondence_distance"):
         SlamConfig.from_dict({"filter": {"icp_retry_correspondence_distance": -1.0}})
 

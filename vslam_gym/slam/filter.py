@@ -264,7 +264,7 @@ class SetDecision:
             ICP pose failed the plausibility gate (``FilterConfig.icp_max_pose_mahalanobis``;
             with ``icp_gate_fallback`` the predicted pose was tested instead, else the
             statistics are NaN), or ``"retried"`` when it failed the gate and the
-            retry with outlier rejection passed it
+            retry with outlier rejection converged on enough points and passed it
             (``FilterConfig.icp_retry_correspondence_distance``).
     """
 
@@ -736,7 +736,9 @@ class VertexSLAM:
                 d_retry = retry.pose - pose
                 d_retry[2] = wrap_angle(d_retry[2])
                 if (
-                    np.all(np.isfinite(d_retry))
+                    retry.converged
+                    and retry.n_used >= cfg.icp_retry_min_fraction * work.points.shape[0]
+                    and np.all(np.isfinite(d_retry))
                     and self._gate_distance(lms[c], d_retry, gate_cov, chol_gate)
                     <= cfg.icp_max_pose_mahalanobis
                 ):
