@@ -458,8 +458,8 @@ class FilterConfig:
             were correct, 30-50 %: 47 %, 50-70 %: 67 %, over 70 %: 89 %; a retry left
             without points stops at the predicted pose, which must not count. Measured
             at 0.5 m and 0.5 (``house``): seeds 0-9 ATE 0.249 -> 0.225 m, final error
-            0.315 -> 0.252 m, but seeds 10-19 0.328 -> 0.337 m and 0.350 -> 0.438 m.
-            Not the default.
+            0.315 -> 0.252 m, but seeds 10-19 0.328 -> 0.337 m and 0.350 -> 0.438 m;
+            at 0.7 seeds 0-9 0.339 m and 0.558 m. Not the default.
         icp_stop_beyond_gate: a per-landmark ICP stops (reason ``"out_of_bound"``) after
             the first step that takes its pose beyond this many times the plausibility
             gate (``icp_max_pose_mahalanobis``, same covariance); such a result fails
