@@ -80,12 +80,12 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     | `status`           | `(2,)`        | float32 | :class:`SlamStatus`: ``log1p`` of the   |
     |                    |               |         | landmark count and of the steps since   |
     |                    |               |         | the last association                    |
-    | `frontier`         | `(4 K,)`      | float32 | only with ``observation={"frontier_     |
-    |                    |               |         | count": K}`` (K > 0): :class:`Frontier- |
-    |                    |               |         | Cue`, the K nearest unknown lines of the|
-    |                    |               |         | map, each as present flag, cos / sin of |
-    |                    |               |         | the bearing to its target point,        |
-    |                    |               |         | distance / 16 m                         |
+    | `frontier`         | `(4 K,)`      | float32 | optional, :class:`FrontierCue`: the K   |
+    |                    |               |         | nearest unknown lines of the map, each  |
+    |                    |               |         | as present flag, cos / sin of the       |
+    |                    |               |         | bearing to its target point, distance / |
+    |                    |               |         | 16 m; only with ``observation=``        |
+    |                    |               |         | ``{"frontier_count": K}``, ``K > 0``    |
 
     ## Rewards
 
