@@ -55,15 +55,17 @@ def test_ppo_smoke_run_saves_a_model_that_acts(tmp_path):
     assert (tmp_path / "eval" / "metrics.json").is_file()
 
 
+def _stopped_at_once(out, reward: str) -> list[str]:
+    """Command line of a tiny run with ``--reward reward`` that the wall clock stops at once."""
+    return [
+        "--env", "VSlam/ExploreSmall-v0", "--timesteps", "64", "--n-envs", "1",
+        "--n-steps", "64", "--batch-size", "32", "--reward", reward,
+        "--checkpoint-every", "0", "--no-progress", "--out", str(out), "--max-minutes", "0",
+    ]  # fmt: skip
+
+
 def test_command_line_with_another_reward_preset(tmp_path, capsys):
-    code = main(
-        [
-            "--env", "VSlam/ExploreSmall-v0", "--timesteps", "64", "--n-envs", "1",
-            "--n-steps", "64", "--batch-size", "32", "--reward", "d_opt",
-            "--checkpoint-every", "0", "--no-progress", "--out", str(tmp_path),
-            "--max-minutes", "0",
-        ]
-    )  # fmt: skip
+    code = main(_stopped_at_once(tmp_path, "d_opt"))
     assert code == 0
     assert "saved" in capsys.readouterr().out
     config = json.loads((tmp_path / "train_config.json").read_text())
@@ -77,14 +79,7 @@ def test_command_line_with_another_reward_preset(tmp_path, capsys):
 def test_reward_weights_as_json(tmp_path):
     from agents.train_ppo import make_env_fn
 
-    code = main(
-        [
-            "--env", "VSlam/ExploreSmall-v0", "--timesteps", "64", "--n-envs", "1",
-            "--n-steps", "64", "--batch-size", "32", "--reward", '{"collision": 10}',
-            "--checkpoint-every", "0", "--no-progress", "--out", str(tmp_path),
-            "--max-minutes", "0",
-        ]
-    )  # fmt: skip
+    code = main(_stopped_at_once(tmp_path, '{"collision": 10}'))
     assert code == 0
     assert json.loads((tmp_path / "train_config.json").read_text())["reward"] == {"collision": 10}
     env = make_env_fn("VSlam/ExploreSmall-v0", 0, {"collision": 10})()
