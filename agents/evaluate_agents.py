@@ -375,6 +375,7 @@ def evaluate_agent(
     progress: bool = True,
     env_kwargs: Mapping[str, Any] | None = None,
     reward: str | None = None,
+    shield: bool = False,
 ) -> dict[str, Any]:
     """Evaluate an agent over ``episodes`` seeded episodes; optionally write the files.
 
@@ -394,6 +395,8 @@ def evaluate_agent(
         reward: a reward preset of the wrapper (``default``, ``d_opt``, ``coverage``;
             :func:`vslam_gym.explore_spec`) instead of the registration's, e.g. the one a
             policy was trained with (only the return depends on it).
+        shield: run every episode under the wrapper's speed shield
+            (:class:`vslam_gym.shield.SpeedShield`), e.g. for a policy trained with it.
 
     Returns:
         ``{"agent", "env_id", "seed", "episodes", "max_steps", "machine", "per_episode",
@@ -411,6 +414,8 @@ def evaluate_agent(
     if video:
         kwargs["render_mode"] = "rgb_array"
     wrapper: dict[str, Any] = {} if reward is None else {"reward": reward}
+    if shield:
+        wrapper["shield"] = True
     cue = frontier_cue(runner)
     if cue:  # a policy trained with the frontier cue observes it again
         wrapper["observation"] = {"frontier_count": cue}
@@ -447,6 +452,7 @@ def evaluate_agent(
         "agent": str(name),
         "env_id": env_id,
         "reward": reward or "registered",
+        "shield": bool(shield),
         "seed": seed,
         "episodes": episodes,
         "max_steps": horizon,
@@ -491,6 +497,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--reward", default=None, help="reward preset (default: the registration's)"
     )
+    parser.add_argument(
+        "--shield",
+        action="store_true",
+        help="cap forward speed by the scan's free corridor (vslam_gym.shield)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -509,6 +520,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             max_steps=args.max_steps,
             progress=not args.no_progress,
             reward=args.reward,
+            shield=args.shield,
         )
     except (ValueError, gym.error.Error) as err:
         print(f"error: {err}", file=sys.stderr)

@@ -22,8 +22,9 @@ never the obstacles. ``obs["scan"]`` holds ranges divided by the lidar's maximum
 beam ``i`` points at ``info["bearings"][i]`` (descending: left to right).
 
 Only the public API: ``gymnasium.make`` with the registered ids, ``env.unwrapped``,
-``env.get_wrapper_attr``, :class:`vslam_gym.control.RouteFollower` and
-:func:`vslam_gym.belief_observation.belief_segments`.
+``env.get_wrapper_attr``, :class:`vslam_gym.control.RouteFollower`,
+:func:`vslam_gym.belief_observation.belief_segments` and
+:func:`vslam_gym.shield.corridor_free_length`.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import numpy as np
 
 from vslam_gym.belief_observation import belief_segments, frontier_targets
 from vslam_gym.control import RouteFollower, RouteFollowerConfig
+from vslam_gym.shield import corridor_free_length
 
 __all__ = [
     "SCRIPTED_AGENTS",
@@ -277,15 +279,7 @@ class ScanNavigator:
         of the scan is in it.
         """
         half_width = self.radius + (self.config.margin if margin is None else margin)
-        u = np.stack([np.cos(directions), np.sin(directions)], axis=1)
-        if len(self.points) == 0:
-            return np.full(len(u), self.max_range)
-        along = self.points @ u.T
-        lateral = self.points @ np.stack([-u[:, 1], u[:, 0]], axis=1).T
-        inside = (np.abs(lateral) < half_width) & (along > 0.0)
-        reach = along - np.sqrt(np.maximum(half_width**2 - lateral**2, 0.0))
-        reach = np.where(inside, reach, self.max_range)
-        return np.maximum(np.min(reach, axis=0), 0.0)
+        return corridor_free_length(self.points, directions, half_width, self.max_range)
 
     def nearest(self, low: float, high: float) -> tuple[float, float] | None:
         """``(range [m], bearing [rad])`` of the closest return with bearing in ``[low, high]``."""

@@ -72,18 +72,24 @@ class PpoSettings:
 
 
 def wrapper_kwargs(
-    reward: str | Mapping[str, float] | None, slam_preset: str | None, frontier_cue: int = 0
+    reward: str | Mapping[str, float] | None,
+    slam_preset: str | None,
+    frontier_cue: int = 0,
+    shield: bool = False,
 ) -> dict[str, Any]:
     """``SlamWrapper`` arguments replacing the registration's: those given (not None).
 
     ``reward``: a reward preset name; ``slam_preset``: a ``SlamConfig`` preset name;
     ``frontier_cue``: > 0 adds the ``frontier`` observation of that many unknown lines
-    (``BeliefObservationConfig.frontier_count``).
+    (``BeliefObservationConfig.frontier_count``); ``shield``: the speed shield with its
+    defaults (:class:`vslam_gym.shield.SpeedShield`).
     """
     given = {"reward": reward, "slam_config": slam_preset}
     kwargs = {k: v for k, v in given.items() if v is not None}
     if frontier_cue > 0:
         kwargs["observation"] = {"frontier_count": int(frontier_cue)}
+    if shield:
+        kwargs["shield"] = True
     return kwargs
 
 
@@ -93,13 +99,16 @@ def make_env_fn(
     reward: str | Mapping[str, float] | None,
     slam_preset: str | None = None,
     frontier_cue: int = 0,
+    shield: bool = False,
 ) -> Any:
     """A picklable constructor of one training environment (for ``make_vec_env``).
 
-    ``reward``, ``slam_preset`` (a ``SlamConfig`` preset name) and ``frontier_cue``
-    replace the registration's wrapper arguments when given (:func:`wrapper_kwargs`).
+    ``reward``, ``slam_preset`` (a ``SlamConfig`` preset name), ``frontier_cue`` and
+    ``shield`` replace the registration's wrapper arguments when given
+    (:func:`wrapper_kwargs`).
     """
-    spec = vslam_gym.explore_spec(env_id, **wrapper_kwargs(reward, slam_preset, frontier_cue))
+    kwargs = wrapper_kwargs(reward, slam_preset, frontier_cue, shield)
+    spec = vslam_gym.explore_spec(env_id, **kwargs)
 
     def make() -> gym.Env:
         return gym.make(spec)
@@ -126,6 +135,7 @@ def train(
     imitation_epochs: int = 10,
     imitation_rounds: int = 1,
     frontier_cue: int = 0,
+    shield: bool = False,
 ) -> Path:
     """Train PPO and save ``out/final_model.zip``; returns its path.
 
@@ -158,6 +168,8 @@ def train(
             driving and the agent labelling (:func:`agents.imitation.clone_agent`).
         frontier_cue: > 0: the policy also observes that many nearest unknown lines of
             the map (the wrapper's ``frontier`` key); 0: the registration's observation.
+        shield: train (and collect demonstrations) under the wrapper's speed shield
+            (:class:`vslam_gym.shield.SpeedShield`); evaluate with ``--shield`` too.
     """
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
@@ -175,7 +187,7 @@ def train(
         if imitate not in SCRIPTED_AGENTS:
             raise ValueError(f"--imitate must be one of {sorted(SCRIPTED_AGENTS)}, got {imitate!r}")
     vec_env = make_vec_env(
-        make_env_fn(env_id, seed, reward, slam_preset, frontier_cue),
+        make_env_fn(env_id, seed, reward, slam_preset, frontier_cue, shield),
         n_envs=n_envs,
         seed=seed,
         monitor_dir=str(out / "monitor"),
@@ -225,7 +237,7 @@ def train(
             rounds=imitation_rounds,
             epochs=imitation_epochs,
             workers=n_envs if subprocesses else 1,
-            wrapper_kwargs=wrapper_kwargs(reward, slam_preset, frontier_cue),
+            wrapper_kwargs=wrapper_kwargs(reward, slam_preset, frontier_cue, shield),
             gamma=settings.gamma,
             work_dir=out,
             seed=seed,
@@ -251,6 +263,7 @@ def train(
         "reward": reward,
         "slam_preset": slam_preset,
         "frontier_cue": frontier_cue,
+        "shield": shield,
         "settings": asdict(settings),
         "vslam_gym": vslam_gym.__version__,
     }
@@ -307,6 +320,11 @@ def main(argv: list[str] | None = None) -> int:
         default=0,
         help="observe this many nearest unknown lines of the map (default 0: off)",
     )
+    parser.add_argument(
+        "--shield",
+        action="store_true",
+        help="cap forward speed by the scan's free corridor (vslam_gym.shield)",
+    )
     args = parser.parse_args(argv)
     reward = args.reward
     if reward is not None and reward.lstrip().startswith("{"):
@@ -333,6 +351,7 @@ def main(argv: list[str] | None = None) -> int:
         imitation_epochs=args.imitation_epochs,
         imitation_rounds=args.imitation_rounds,
         frontier_cue=args.frontier_cue,
+        shield=args.shield,
     )
     config = json.loads((args.out / "train_config.json").read_text())
     print(

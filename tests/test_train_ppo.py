@@ -126,3 +126,23 @@ def test_a_policy_trained_with_the_frontier_cue_is_evaluated_with_it(tmp_path):
         path, "VSlam/ExploreSmall-v0", episodes=1, seed=0, max_steps=4, progress=False
     )
     assert summary["per_episode"][0]["steps"] == 4
+
+
+def test_shield_flag_reaches_training_and_evaluation(tmp_path):
+    from agents.evaluate_agents import main as evaluate_main
+    from agents.train_ppo import make_env_fn
+
+    code = main([*_stopped_at_once(tmp_path, "default"), "--shield"])
+    assert code == 0
+    assert json.loads((tmp_path / "train_config.json").read_text())["shield"] is True
+    env = make_env_fn("VSlam/ExploreSmall-v0", 0, None, shield=True)()
+    try:
+        assert env.get_wrapper_attr("shield_config") is not None
+    finally:
+        env.close()
+    out = tmp_path / "eval"
+    args = ["--agent", "random", "--env", "VSlam/ExploreSmall-v0", "--episodes", "1"]
+    args += ["--max-steps", "3", "--out", str(out), "--shield", "--no-progress"]
+    assert evaluate_main(args) == 0
+    summary = json.loads((out / "metrics.json").read_text())
+    assert summary["shield"] is True and summary["per_episode"][0]["steps"] == 3

@@ -53,6 +53,7 @@ SLAM_WRAPPER_SPEC = WrapperSpec(
         "reward": "default",
         "observation": None,
         "map_reset_scan": False,
+        "shield": None,
     },
 )
 """The wrapper every exploration id applies (so ``Monitor`` records the belief reward)."""
@@ -90,7 +91,8 @@ def explore_spec(env_id: str = EXPLORE_ID, **wrapper_kwargs: Any) -> EnvSpec:
     Args:
         env_id: a registered exploration id.
         **wrapper_kwargs: ``slam_config``, ``reward``, ``observation``,
-            ``map_reset_scan`` (JSON-able values: preset names or mappings).
+            ``map_reset_scan``, ``shield`` (JSON-able values: preset names, mappings or
+            booleans).
 
     Raises:
         ValueError: ``env_id`` is not an exploration id, or an unknown wrapper argument.

@@ -24,6 +24,7 @@ from vslam_gym.belief_reward import BeliefReward, BeliefRewardConfig
 from vslam_gym.config_utils import dataclass_from_dict
 from vslam_gym.env import LidarWorldEnv
 from vslam_gym.evaluation import sensor_from_lidar, slam_config
+from vslam_gym.shield import ShieldConfig, SpeedShield
 from vslam_gym.slam.filter import Belief, SlamConfig, VertexSLAM
 
 ASSOCIATED_OUTCOMES = ("updated", "associated")
@@ -59,7 +60,11 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     ## Action Space
 
     The wrapped environment's: ``Box(-1, 1, (2,), float32)``, forward speed and turn
-    rate commands.
+    rate commands. With ``shield=`` a :class:`~vslam_gym.shield.SpeedShield` caps the
+    forward speed command by the free corridor ahead in the latest scan before the
+    wrapped environment executes it (turns and backward commands pass unchanged); the
+    executed action is ``info["executed_action"]``, ``info["shielded"]`` says whether
+    it was capped. Every agent on a shielded environment gets the same shield.
 
     ## Observation Space
 
@@ -131,9 +136,13 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     | `reward`      | `"default"` | preset name, mapping of weights or config             |
     | `observation` | `None`      | mapping of ``BeliefObservationConfig`` fields         |
     | `map_reset_scan` | `False`  | run the filter on the scan of ``reset`` too           |
+    | `shield`      | `None`      | ``None``/``False``: off; ``True``, a mapping of       |
+    |               |             | ``ShieldConfig`` fields or a ``ShieldConfig``: cap    |
+    |               |             | forward speed by the scan's free corridor             |
 
     ``info`` adds ``slam_pose`` and ``slam_pose_cov`` (the robot pose belief, world
-    frame), ``landmarks``, ``rewards`` and ``env_reward`` to the
+    frame), ``landmarks``, ``rewards``, ``env_reward`` and, with a shield,
+    ``executed_action`` and ``shielded`` to the
     wrapped environment's keys, which hold ground truth (``pose``, ``hit_ids``):
     for metrics only, never part of the observation or the reward. The filter's wall
     time per step is ``belief.step_ms`` (``env.get_wrapper_attr("belief")``), not in
@@ -141,8 +150,8 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     ## Version History
 
-    - v0: initial version (the optional ``frontier`` key was added before the first
-      release, 2026-11-25).
+    - v0: initial version (the optional ``frontier`` key and ``shield`` were added
+      before the first release, 2026-11-25).
     """
 
     def __init__(
@@ -152,6 +161,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reward: str | BeliefRewardConfig | Mapping[str, Any] = "default",
         observation: BeliefObservationConfig | Mapping[str, Any] | None = None,
         map_reset_scan: bool = False,
+        shield: ShieldConfig | Mapping[str, Any] | bool | None = None,
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
             self,
@@ -159,6 +169,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             reward=reward,
             observation=observation,
             map_reset_scan=map_reset_scan,
+            shield=shield,
         )
         gym.Wrapper.__init__(self, env)
         base = env.unwrapped
@@ -193,6 +204,9 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             keys["frontier"] = self._frontier.space()
         self.observation_space = spaces.Dict(keys)
         self._reward = BeliefReward(self.reward_config)
+        self.shield_config = ShieldConfig.from_any(shield)
+        self._shield: SpeedShield | None = None  # built at reset (the robot may change)
+        self._scan_m = np.zeros(n_beams)  # the latest scan [m], for the shield
         self._slam: VertexSLAM | None = None
         self._belief: Belief | None = None
         self._segments: dict[str, np.ndarray] = {}  # belief_segments of the latest belief
@@ -228,6 +242,17 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             self._belief = self._slam.belief
         self._steps_since_association = 0
+        if self.shield_config is not None:
+            robot = base.world.robot
+            self._shield = SpeedShield(
+                self.shield_config,
+                robot.radius,
+                self.sensor.max_range,
+                info["bearings"],
+                robot.max_turn_rate,
+                base.physics_config.control_period,
+            )
+        self._scan_m = np.asarray(obs["scan"], dtype=float)
         self._segments = belief_segments(self._belief, self._unknown_threshold)
         self._reward.reset(self._belief.pose_cov, self._boundary_cells())
         info = self._info(info, {}, 0.0)
@@ -239,7 +264,11 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """Step the world, run the filter, observe and reward the belief."""
         if self._slam is None:
             raise ResetNeeded("call reset() before step()")
+        shielded = False
+        if self._shield is not None:
+            action, shielded = self._shield.apply(action, self._scan_m)
         obs, env_reward, terminated, truncated, info = self.env.step(action)
+        self._scan_m = np.asarray(obs["scan"], dtype=float)
         self._belief = self._slam.step(obs["odometry"], obs["scan"], info["bearings"])
         if any(d.outcome in ASSOCIATED_OUTCOMES for d in self._belief.decisions):
             self._steps_since_association = 0
@@ -250,6 +279,9 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._belief.pose_cov, self._boundary_cells(), bool(info["collision"])
         )
         info = self._info(info, rewards, float(env_reward))
+        if self._shield is not None:
+            info["executed_action"] = np.asarray(action, dtype=np.float32).copy()
+            info["shielded"] = shielded
         return self._observe(obs), float(sum(rewards.values())), terminated, truncated, info
 
     # ------------------------------------------------------------------ pieces
