@@ -522,6 +522,20 @@ class FilterConfig:
             default): no verification. With 3 on top of ``verify_heading_sigma`` 3,
             ``house`` seeds 0-9 measured ATE 0.249 -> 0.256 m, final error 0.315 ->
             0.358 m.
+        prune_covered_distance: pruning of covered duplicates (a light form of the
+            thesis's future work "merging landmarks of one object", SPEC section 11):
+            when a landmark has not been associated, updated or created for
+            ``prune_idle_steps`` measurement updates, and at least
+            ``prune_covered_fraction`` of its object-line length lies within this
+            distance [m] of another landmark's object lines (vertex means), it is
+            removed from the state by marginalisation (its reference's rows and
+            columns are dropped: exact for a Gaussian, so the rest of the belief is
+            unchanged). When the two cover each other, the one with the larger
+            reference covariance (trace) is removed, and only once it is idle. The
+            removed ids are in ``Belief.pruned``; the other ids do not change. 0 (the
+            thesis): off.
+        prune_covered_fraction: see ``prune_covered_distance``; in ``(0, 1]``.
+        prune_idle_steps: see ``prune_covered_distance``; >= 1.
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -559,6 +573,9 @@ class FilterConfig:
     create_beside_candidates: bool = True
     verify_heading_sigma: float = 3.0
     verify_position_sigma: float = 0.0
+    prune_covered_distance: float = 0.0
+    prune_covered_fraction: float = 0.8
+    prune_idle_steps: int = 20
 
     def __post_init__(self) -> None:
         floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
@@ -590,10 +607,22 @@ class FilterConfig:
             "creation_overlap_distance",
             "verify_heading_sigma",
             "verify_position_sigma",
+            "prune_covered_distance",
         ):
             value = getattr(self, name)
             if not value >= 0.0:  # NaN fails too
                 raise ValueError(f"FilterConfig.{name} must be >= 0, got {value!r}")
+        if not 0.0 < self.prune_covered_fraction <= 1.0:
+            raise ValueError(
+                "FilterConfig.prune_covered_fraction must lie in (0, 1], got "
+                f"{self.prune_covered_fraction!r}"
+            )
+        steps = self.prune_idle_steps
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise ValueError(
+                f"FilterConfig.prune_idle_steps must be an integer >= 1, got "
+                f"{self.prune_idle_steps!r}"
+            )
         if self.new_landmark not in NEW_LANDMARKS:
             raise ValueError(
                 f"FilterConfig.new_landmark must be one of {NEW_LANDMARKS}, got "

@@ -64,6 +64,7 @@ from vslam_gym.slam.motion import (
     odometry_noise,
     relative_motion_update,
 )
+from vslam_gym.slam.pruning import covered_fraction, object_segments, sample_segments
 from vslam_gym.slam.scan import Scan
 from vslam_gym.slam.scan_matching import (
     LocalMap,
@@ -293,6 +294,8 @@ class Belief:
         measured: the last step ran the landmark measurement update (False when the
             motion filter skipped it: ``FilterConfig.measurement_min_travel``; then
             ``decisions`` is empty).
+        pruned: ids of the landmarks removed in the last step as covered duplicates
+            (``FilterConfig.prune_covered_distance``).
     """
 
     step: int
@@ -305,6 +308,7 @@ class Belief:
     step_ms: float
     prealigned: bool = False
     measured: bool = False
+    pruned: tuple[int, ...] = ()
 
 
 @dataclass
@@ -322,6 +326,8 @@ class _Landmark:
     geometry: LineGeometry | None = None  # icp.line_geometry
     parts: Any = None  # detection.model_parts of detection_model
     detection_model: LandmarkModel | None = None  # model with detection_model_sigma
+    last_seen: int = 0  # measurement update that last created, associated or updated it
+    idle_checked: bool = False  # covered-duplicate test done since it went idle
 
 
 class _MapSnapshot:
@@ -372,6 +378,16 @@ class _MapSnapshot:
             self.objects[i, lines.ravel()] = True
         else:  # no object line: all vertices (icp.object_radius)
             self.objects[i, :k] = True
+
+    def delete(self, rows: list[int]) -> None:
+        """Drop the rows of removed landmarks (the rest keep their order)."""
+        self.a = np.delete(self.a, rows, axis=0)
+        self.b = np.delete(self.b, rows, axis=0)
+        self.k = np.delete(self.k, rows)
+        self.objects = np.delete(self.objects, rows, axis=0)
+        if self.means.shape[0] > max(rows):
+            self.means = np.delete(self.means, rows, axis=0)
+            self.radii = np.delete(self.radii, rows)
 
     def refresh(self, refs: np.ndarray) -> None:
         """Means ``(N, K, 2)`` and object radii ``(N,)`` [m] at the references ``(N, d)``."""
@@ -459,6 +475,9 @@ class VertexSLAM:
         self._sigma = np.diag(np.asarray(self.config.filter.initial_pose_sigma) ** 2)
         self._landmarks: list[_Landmark] = []
         self._snapshot = _MapSnapshot(self._ref_dim)
+        self._next_id = 0
+        self._measurements = 0  # measurement updates run
+        self._pruned: tuple[int, ...] = ()
         self._step = 0
         self._decisions: tuple[SetDecision, ...] = ()
         self._step_ms = 0.0
@@ -496,6 +515,7 @@ class VertexSLAM:
             step_ms=self._step_ms,
             prealigned=self._prealigned,
             measured=self._measured,
+            pruned=self._pruned,
         )
 
     def step(self, odometry, ranges, bearings) -> Belief:
@@ -537,9 +557,13 @@ class VertexSLAM:
                 self._motion_update(u)
                 self._prealigned = self._fuse_match(points)
         self._measured = self._moved_enough()
+        self._pruned = ()
         if self._measured:
+            self._measurements += 1
             self._decisions = tuple(self._measurement_update(scan))
             self._refresh_models()
+            if self.config.filter.prune_covered_distance > 0.0:
+                self._pruned = self._prune_covered()
             self._measured_at = self._mu[:3].copy()
         else:
             self._decisions = ()
@@ -940,6 +964,7 @@ class VertexSLAM:
             else:
                 associations.append(assoc)
         for assoc in associations:
+            assoc.landmark.last_seen, assoc.landmark.idle_checked = self._measurements, False
             outcome = "associated"
             if assoc.enough:
                 outcome = self._update_landmark(scan, assoc)
@@ -1069,7 +1094,9 @@ class VertexSLAM:
         )
         self._finish_model(lm, upd, scan)
         self._set_model(lm, self._model_of(lm))
-        self._snapshot.set(lm.id, lm.cond, lm.u, lm.closed, self.config.model.unknown_threshold)
+        self._snapshot.set(
+            self._index(lm), lm.cond, lm.u, lm.closed, self.config.model.unknown_threshold
+        )
         return "updated"
 
     def _verified(self, mu: np.ndarray, icp_pose: np.ndarray) -> bool:
@@ -1213,17 +1240,101 @@ class VertexSLAM:
             return None
         self._mu, self._sigma = mu, sigma
         lm = _Landmark(
-            id=len(self._landmarks),
+            id=self._next_id,
             ref=mu.size - d,
             cond=cond,
             u=model.u.copy(),
             closed=False,
             object_vertices=fit.object_vertices,
+            last_seen=self._measurements,
         )
+        self._next_id += 1
         self._set_model(lm, self._model_of(lm))
         self._landmarks.append(lm)
-        self._snapshot.set(lm.id, lm.cond, lm.u, lm.closed, self.config.model.unknown_threshold)
+        self._snapshot.set(
+            self._index(lm), lm.cond, lm.u, lm.closed, self.config.model.unknown_threshold
+        )
         return lm.id
+
+    def _index(self, lm: _Landmark) -> int:
+        """Position of ``lm`` in the landmark list, the state and the snapshot."""
+        return (lm.ref - POSE_DIM) // self._ref_dim
+
+    # ------------------------------------------------------------------ covered duplicates
+
+    def _prune_covered(self) -> tuple[int, ...]:
+        """Remove idle landmarks whose object lines another landmark covers; their ids.
+
+        ``FilterConfig.prune_covered_distance``: each landmark is tested once per idle
+        period (the first measurement update it has been idle ``prune_idle_steps``
+        for), against the landmarks near it (references within the sum of the object
+        radii plus the distance). Of two that cover each other, the one with the larger
+        reference covariance trace goes, and only when it is idle itself.
+        """
+        cfg = self.config.filter
+        distance, need = cfg.prune_covered_distance, cfg.prune_covered_fraction
+        threshold = self.config.model.unknown_threshold
+        idle = [
+            lm
+            for lm in self._landmarks
+            if not lm.idle_checked and self._measurements - lm.last_seen >= cfg.prune_idle_steps
+        ]
+        if not idle:
+            return ()
+        refs = self._refs()[:, :REF_DIM]
+        radii = np.array([lm.radius for lm in self._landmarks])
+        segments: dict[int, np.ndarray] = {}
+
+        def lines(lm: _Landmark) -> np.ndarray:
+            if lm.id not in segments:
+                segments[lm.id] = object_segments(self._model(lm), threshold)
+            return segments[lm.id]
+
+        def covered(a: _Landmark, b: _Landmark) -> bool:
+            """Object lines of ``a`` covered by those of ``b``."""
+            points, weights = sample_segments(lines(a), 0.5 * distance)
+            return covered_fraction(points, weights, lines(b), distance) >= need
+
+        def uncertainty(lm: _Landmark) -> float:
+            r = slice(lm.ref, lm.ref + REF_DIM)
+            return float(np.trace(self._sigma[r, r]))
+
+        removed: set[int] = set()
+        for lm in idle:
+            lm.idle_checked = True
+            if lm.id in removed:
+                continue
+            i = self._index(lm)
+            gap = np.hypot(*(refs - refs[i]).T) - radii - radii[i]
+            for j in np.flatnonzero(gap <= distance).tolist():
+                other = self._landmarks[j]
+                if other is lm or other.id in removed or not covered(lm, other):
+                    continue
+                if uncertainty(lm) >= uncertainty(other):
+                    removed.add(lm.id)
+                    break
+                # The covered landmark is the better anchored: keep it; the other goes
+                # instead if it is covered too and idle.
+                other_idle = self._measurements - other.last_seen >= cfg.prune_idle_steps
+                if other_idle and covered(other, lm):
+                    removed.add(other.id)
+        if removed:
+            self._remove_landmarks(removed)
+        return tuple(sorted(removed))
+
+    def _remove_landmarks(self, ids: set[int]) -> None:
+        """Marginalise the landmarks ``ids`` out of the state (drop their rows/columns)."""
+        d = self._ref_dim
+        gone = [lm for lm in self._landmarks if lm.id in ids]
+        rows = np.concatenate([np.arange(lm.ref, lm.ref + d) for lm in gone])
+        positions = [self._index(lm) for lm in gone]
+        keep = np.setdiff1d(np.arange(self._mu.size), rows)
+        self._mu = self._mu[keep]
+        self._sigma = self._sigma[np.ix_(keep, keep)]
+        self._snapshot.delete(positions)
+        self._landmarks = [lm for lm in self._landmarks if lm.id not in ids]
+        for k, lm in enumerate(self._landmarks):
+            lm.ref = POSE_DIM + d * k
 
     def _model_of(self, lm: _Landmark) -> LandmarkModel:
         r = self._mu[lm.ref : lm.ref + self._ref_dim]
