@@ -530,8 +530,9 @@ class FilterConfig:
             distance [m] of another landmark's object lines (vertex means), it is
             removed from the state by marginalisation (its reference's rows and
             columns are dropped: exact for a Gaussian, so the rest of the belief is
-            unchanged). When the two cover each other, the one with the larger
-            reference covariance (trace) is removed, and only once it is idle. The
+            unchanged). A covered landmark whose reference is better known (smaller
+            covariance trace) than its coverer's stays; the coverer is removed instead
+            if it is idle and covered by it. The
             removed ids are in ``Belief.pruned``; the other ids do not change. 0 (the
             thesis): off. Measured at 0.1 m (``vslam-gym evaluate --seeds 0-9``, paired
             against the default, 2026-11-25): position ATE single_landmark / small /

@@ -1268,8 +1268,9 @@ class VertexSLAM:
         ``FilterConfig.prune_covered_distance``: each landmark is tested once per idle
         period (the first measurement update it has been idle ``prune_idle_steps``
         for), against the landmarks near it (references within the sum of the object
-        radii plus the distance). Of two that cover each other, the one with the larger
-        reference covariance trace goes, and only when it is idle itself.
+        radii plus the distance). A covered landmark goes when its reference covariance
+        trace is at least its coverer's; otherwise the better known one stays and the
+        coverer goes instead, if it is idle and covered by it.
         """
         cfg = self.config.filter
         distance, need = cfg.prune_covered_distance, cfg.prune_covered_fraction
