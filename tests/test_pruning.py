@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from test_filter import run
 
-from vslam_gym.slam.filter import SlamConfig
+from vslam_gym.slam.filter import SlamConfig, _segment_distances
+from vslam_gym.slam.icp import line_geometry
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.pruning import covered_fraction, object_segments, sample_segments
 
@@ -32,12 +33,14 @@ def test_samples_span_each_segment_and_weigh_its_length():
         (_segments([(-1, 0.05), (3, 0.05)]), 1.0),  # parallel, 5 cm off
         (_segments([(-1, 0.2), (3, 0.2)]), 0.0),  # parallel, 20 cm off
         (_segments([(1, 0), (3, 0)]), 0.55),  # from x = 0.9 on: within 0.1 m of its end
-        (np.zeros((0, 2, 2)), 0.0),  # nothing to cover with
     ],
 )
 def test_covered_fraction(other, expected):
     points, weights = sample_segments(_segments([(0, 0), (2, 0)]), 0.02)
-    assert covered_fraction(points, weights, other, 0.1) == pytest.approx(expected, abs=0.02)
+    model = LandmarkModel(other[0], np.eye(4), np.zeros(1), False)
+    distances = _segment_distances(points, [line_geometry(model)])[0]
+    assert covered_fraction(weights, distances, 0.1) == pytest.approx(expected, abs=0.02)
+    assert covered_fraction(np.zeros(0), np.zeros(0), 0.1) == 0.0  # nothing to cover
 
 
 def test_object_segments_skip_unknown_lines_and_close_polygons():

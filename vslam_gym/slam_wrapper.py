@@ -206,7 +206,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._reward = BeliefReward(self.reward_config)
         self.shield_config = ShieldConfig.from_any(shield)
         self._shield: SpeedShield | None = None  # built at reset (the robot may change)
-        self._scan_m = np.zeros(n_beams)  # the latest scan [m], for the shield
+        self._scan_m = np.zeros(n_beams, dtype=np.float32)  # the latest scan [m], for the shield
         self._slam: VertexSLAM | None = None
         self._belief: Belief | None = None
         self._segments: dict[str, np.ndarray] = {}  # belief_segments of the latest belief
@@ -252,7 +252,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 robot.max_turn_rate,
                 base.physics_config.control_period,
             )
-        self._scan_m = np.asarray(obs["scan"], dtype=float)
+        self._scan_m = obs["scan"]
         self._segments = belief_segments(self._belief, self._unknown_threshold)
         self._reward.reset(self._belief.pose_cov, self._boundary_cells())
         info = self._info(info, {}, 0.0)
@@ -268,7 +268,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._shield is not None:
             action, shielded = self._shield.apply(action, self._scan_m)
         obs, env_reward, terminated, truncated, info = self.env.step(action)
-        self._scan_m = np.asarray(obs["scan"], dtype=float)
+        self._scan_m = obs["scan"]
         self._belief = self._slam.step(obs["odometry"], obs["scan"], info["bearings"])
         if any(d.outcome in ASSOCIATED_OUTCOMES for d in self._belief.decisions):
             self._steps_since_association = 0

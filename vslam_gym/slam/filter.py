@@ -385,9 +385,8 @@ class _MapSnapshot:
         self.b = np.delete(self.b, rows, axis=0)
         self.k = np.delete(self.k, rows)
         self.objects = np.delete(self.objects, rows, axis=0)
-        if self.means.shape[0] > max(rows):
-            self.means = np.delete(self.means, rows, axis=0)
-            self.radii = np.delete(self.radii, rows)
+        self.means = np.delete(self.means, rows, axis=0)
+        self.radii = np.delete(self.radii, rows)
 
     def refresh(self, refs: np.ndarray) -> None:
         """Means ``(N, K, 2)`` and object radii ``(N,)`` [m] at the references ``(N, d)``."""
@@ -1284,17 +1283,21 @@ class VertexSLAM:
             return ()
         refs = self._refs()[:, :REF_DIM]
         radii = np.array([lm.radius for lm in self._landmarks])
-        segments: dict[int, np.ndarray] = {}
-
-        def lines(lm: _Landmark) -> np.ndarray:
-            if lm.id not in segments:
-                segments[lm.id] = object_segments(self._model(lm), threshold)
-            return segments[lm.id]
+        samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # id -> (points, weights)
 
         def covered(a: _Landmark, b: _Landmark) -> bool:
             """Object lines of ``a`` covered by those of ``b``."""
-            points, weights = sample_segments(lines(a), 0.5 * distance)
-            return covered_fraction(points, weights, lines(b), distance) >= need
+            obj = self._model(b).u <= threshold
+            if not np.any(obj):
+                return False
+            if a.id not in samples:
+                segments = object_segments(self._model(a), threshold)
+                samples[a.id] = sample_segments(segments, 0.5 * distance)
+            points, weights = samples[a.id]
+            if points.shape[0] == 0:
+                return False
+            near = _segment_distances(points, [self._geometry(b).subset(obj)])[0]
+            return covered_fraction(weights, near, distance) >= need
 
         def uncertainty(lm: _Landmark) -> float:
             r = slice(lm.ref, lm.ref + REF_DIM)
@@ -1401,8 +1404,17 @@ _MIN_LENGTH2 = 1e-12
 def _median_distances(points: np.ndarray, geometry: list[LineGeometry]) -> np.ndarray:
     """Median distance [m] of ``points`` ``(n, 2)`` to each model's nearest line segment.
 
-    ``geometry``: :func:`~vslam_gym.slam.icp.line_geometry` of each model, padded here
-    into one ``(models, n, lines)`` batch. Returns ``(len(geometry),)``.
+    ``geometry``: :func:`~vslam_gym.slam.icp.line_geometry` of each model. Returns
+    ``(len(geometry),)``.
+    """
+    return np.median(_segment_distances(points, geometry), axis=1)
+
+
+def _segment_distances(points: np.ndarray, geometry: list[LineGeometry]) -> np.ndarray:
+    """``(len(geometry), n)`` distance [m] of each point to each model's nearest segment.
+
+    ``geometry``: :func:`~vslam_gym.slam.icp.line_geometry` of each model (at least one
+    line each), padded here into one ``(models, n, lines)`` batch.
     """
     n_lines = max(g.ax.size for g in geometry)
     padded = np.zeros((4, len(geometry), n_lines))
@@ -1418,7 +1430,7 @@ def _median_distances(points: np.ndarray, geometry: list[LineGeometry]) -> np.nd
     dx = apx - t * abx
     dy = apy - t * aby
     dist2 = np.where(valid[:, None, :], dx * dx + dy * dy, np.inf).min(axis=2)
-    return np.median(np.sqrt(dist2), axis=1)
+    return np.sqrt(dist2)
 
 
 def _pruned_u(

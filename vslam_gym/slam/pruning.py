@@ -3,8 +3,9 @@
 A light form of the thesis's future work "merging landmarks of one object" (SPEC
 section 11): a landmark whose object lines lie (almost) entirely on another landmark's
 object lines adds nothing to the map that the other does not hold, and the filter may
-remove it (``FilterConfig.prune_covered_distance``). This module holds the geometry
-(vertex means only, world frame, metres); the state surgery is the filter's.
+remove it (``FilterConfig.prune_covered_distance``). This module holds the sampling and
+the coverage measure (vertex means only, world frame, metres); the point-to-line
+distances and the state surgery are the filter's.
 """
 
 from __future__ import annotations
@@ -48,29 +49,15 @@ def sample_segments(segments: np.ndarray, spacing: float) -> tuple[np.ndarray, n
     return points, (length / counts)[seg]
 
 
-def _distances(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """``(p,)`` distance [m] of each point to the nearest segment (inf with none)."""
-    if segments.shape[0] == 0:
-        return np.full(points.shape[0], np.inf)
-    a = segments[None, :, 0]
-    ab = segments[None, :, 1] - a
-    ap = points[:, None, :] - a
-    length2 = np.sum(ab * ab, axis=2)  # (1, m)
-    inv = np.divide(1.0, length2, out=np.zeros_like(length2), where=length2 > 0)
-    s = np.clip(np.sum(ap * ab, axis=2) * inv, 0.0, 1.0)
-    d = ap - s[:, :, None] * ab
-    return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
-
-
-def covered_fraction(
-    points: np.ndarray, weights: np.ndarray, segments: np.ndarray, distance: float
-) -> float:
-    """Length-weighted fraction of sampled object lines within ``distance`` [m] of ``segments``.
+def covered_fraction(weights: np.ndarray, distances: np.ndarray, distance: float) -> float:
+    """Length-weighted fraction of sampled object lines within ``distance`` [m] of another's.
 
     Args:
-        points, weights: one landmark's object lines, from :func:`sample_segments`.
-        segments: ``(m, 2, 2)`` the other landmark's object lines.
-        distance: largest point-to-segment distance [m] that counts as covered.
+        weights: ``(p,)`` the length [m] each sample of one landmark's object lines stands
+            for (:func:`sample_segments`).
+        distances: ``(p,)`` each sample's distance [m] to the other landmark's nearest
+            object line.
+        distance: largest distance [m] that counts as covered.
 
     Returns:
         A fraction in ``[0, 1]``; 0 when there is nothing to cover.
@@ -78,5 +65,4 @@ def covered_fraction(
     total = float(weights.sum())
     if total <= 0.0:
         return 0.0
-    near = _distances(points, segments) <= distance
-    return float(weights[near].sum()) / total
+    return float(weights[distances <= distance].sum()) / total
