@@ -16,6 +16,7 @@ from vslam_gym.slam.gaussian import (
     UnscentedLinearization,
     ensure_spd,
     first_order_transform,
+    inflated_information,
     is_spd,
     make_linearization,
     sigma_points,
@@ -408,3 +409,21 @@ def test_ut_and_first_order_agree_on_thesis_vertex():
     assert np.max(np.abs(mu_ut - corner)) < 0.1 * np.sqrt(np.max(np.diag(Sigma_ut)))
     np.testing.assert_allclose(Sigma_ut, Sigma_fo, rtol=0, atol=0.005 * np.max(Sigma_ut))
     assert is_spd(Sigma_ut)
+
+
+def test_inflated_information_adds_covariance_and_keeps_null_directions():
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(4, 4))
+    k = a @ a.T + 0.1 * np.eye(4)
+    sigma = 0.05
+    inflated = inflated_information(k, sigma)
+    np.testing.assert_allclose(np.linalg.inv(inflated), np.linalg.inv(k) + sigma**2 * np.eye(4))
+    np.testing.assert_array_equal(inflated, inflated.T)
+    np.testing.assert_array_equal(inflated_information(k, 0.0), k)
+    # singular: two observed coordinates of four, with 1 mm precision
+    singular = np.zeros((4, 4))
+    singular[:2, :2] = np.diag([1e6, 4e6])
+    capped = inflated_information(singular, sigma)
+    np.testing.assert_array_equal(capped[2:], 0.0)
+    np.testing.assert_allclose(np.diag(capped)[:2], 1.0 / (np.array([1e-6, 0.25e-6]) + sigma**2))
+    assert np.linalg.eigvalsh(capped).max() < 1.0 / sigma**2

@@ -9,7 +9,14 @@ from test_filter import run
 from vslam_gym.slam.filter import SlamConfig, _segment_distances
 from vslam_gym.slam.icp import line_geometry
 from vslam_gym.slam.landmark import LandmarkModel
-from vslam_gym.slam.pruning import covered_fraction, object_segments, sample_segments
+from vslam_gym.slam.pruning import (
+    TranslationFit,
+    covered_fraction,
+    fit_translation,
+    object_segments,
+    sample_segments,
+    segment_normals,
+)
 
 
 def _segments(*pairs):
@@ -18,11 +25,11 @@ def _segments(*pairs):
 
 def test_samples_span_each_segment_and_weigh_its_length():
     segs = _segments([(0, 0), (1, 0)], [(0, 1), (0, 1.25)])
-    points, weights = sample_segments(segs, 0.1)
+    points, weights, seg = sample_segments(segs, 0.1)
     assert weights.sum() == pytest.approx(1.25)
     assert np.all(np.diff(points[: np.count_nonzero(points[:, 1] == 0), 0]) <= 0.1 + 1e-12)
     assert {tuple(p) for p in points} >= {(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (0.0, 1.25)}
-    empty_points, empty_weights = sample_segments(np.zeros((0, 2, 2)), 0.1)
+    empty_points, empty_weights, _ = sample_segments(np.zeros((0, 2, 2)), 0.1)
     assert empty_points.shape == (0, 2) and empty_weights.size == 0
 
 
@@ -36,7 +43,7 @@ def test_samples_span_each_segment_and_weigh_its_length():
     ],
 )
 def test_covered_fraction(other, expected):
-    points, weights = sample_segments(_segments([(0, 0), (2, 0)]), 0.02)
+    points, weights, _ = sample_segments(_segments([(0, 0), (2, 0)]), 0.02)
     model = LandmarkModel(other[0], np.eye(4), np.zeros(1), False)
     distances = _segment_distances(points, [line_geometry(model)])[0]
     assert covered_fraction(weights, distances, 0.1) == pytest.approx(expected, abs=0.02)
@@ -98,6 +105,94 @@ def test_removal_is_a_marginalisation():
     np.testing.assert_array_equal(slam._refs(), [lm.reference for lm in after.landmarks])
 
 
+def _fit(victim, keeper, max_distance=0.5):
+    """fit_translation of the polyline ``victim`` onto ``keeper`` (vertex lists)."""
+    segs = np.stack([victim[:-1], victim[1:]], axis=1)
+    points, weights, seg = sample_segments(segs, 0.05)
+    keeper_segs = np.stack([keeper[:-1], keeper[1:]], axis=1)
+    return fit_translation(points, weights, segment_normals(segs)[seg], keeper_segs, max_distance)
+
+
+L_SHAPE = np.array([(0.0, 2.0), (0.0, 0.0), (2.0, 0.0)])  # right-hand free side: x < 0, y < 0
+
+
+def test_segment_normals_point_to_the_free_side():
+    normals = segment_normals(np.stack([L_SHAPE[:-1], L_SHAPE[1:]], 1))
+    np.testing.assert_allclose(normals, [(-1, 0), (0, -1)])
+
+
+def test_fit_recovers_the_offset_of_a_corner():
+    fit = _fit(L_SHAPE + (-0.2, 0.1), L_SHAPE)
+    np.testing.assert_allclose(fit.offset, (0.2, -0.1), atol=1e-9)
+    assert fit.directions.shape == (2, 2)
+    assert covered_fraction(np.ones(fit.distances.size), fit.distances, 0.01) > 0.9
+
+
+def test_fit_of_a_straight_wall_moves_along_its_normal_only():
+    wall = np.array([(0.0, 0.0), (3.0, 0.0)])  # free side y < 0
+    fit = _fit(wall + (0.7, 0.15), wall)
+    assert fit.directions.shape == (2, 1)
+    np.testing.assert_allclose(np.abs(fit.directions[:, 0]), (0, 1), atol=1e-12)
+    np.testing.assert_allclose(fit.offset, (0.0, -0.15), atol=1e-9)
+
+
+def test_fit_never_matches_the_other_face_of_a_wall():
+    wall = np.array([(0.0, 0.0), (3.0, 0.0)])
+    fit = _fit(wall[::-1] + (0.0, 0.05), wall)  # 5 cm away, facing the other way
+    assert np.all(np.isinf(fit.distances)) and fit.directions.shape == (2, 0)
+    np.testing.assert_array_equal(fit.offset, (0.0, 0.0))
+
+
+def _merge_setup():
+    slam, beliefs, _, _ = run(SlamConfig(), steps=40)
+    victim, keeper = slam._landmarks[0], slam._landmarks[1]
+    d = np.eye(2)
+    jv, _ = slam._object_vertex_moments(victim)
+    jk, _ = slam._object_vertex_moments(keeper)
+    h = np.zeros((2, slam._mu.size))
+    h[:, victim.ref : victim.ref + 2], h[:, keeper.ref : keeper.ref + 2] = jv, -jk
+    return slam, victim, keeper, d, h
+
+
+def test_merge_is_a_gated_kalman_update_of_the_relative_position():
+    slam, victim, keeper, d, h = _merge_setup()
+    mu, sigma = slam._mu.copy(), slam._sigma.copy()
+    offset = np.array([0.03, -0.02])
+    assert slam._merge_duplicate(victim, keeper, TranslationFit(offset, d, np.zeros(1)))
+    moved = h @ (slam._mu - mu)
+    # the relative position moves toward the measured offset, not beyond it
+    assert np.all(moved * offset > 0) and np.all(np.abs(moved) <= np.abs(offset) + 1e-12)
+    assert np.all(np.diag(h @ slam._sigma @ h.T) < np.diag(h @ sigma @ h.T))
+    np.testing.assert_array_equal(slam._sigma, slam._sigma.T)
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0.0
+    # an offset far beyond the gate leaves the state exactly as it was
+    mu, sigma = slam._mu.copy(), slam._sigma.copy()
+    assert not slam._merge_duplicate(
+        victim, keeper, TranslationFit(np.array([5.0, 0]), d, np.zeros(1))
+    )
+    assert not slam._merge_duplicate(
+        victim, keeper, TranslationFit(offset, np.zeros((2, 0)), np.zeros(1))
+    )
+    np.testing.assert_array_equal(slam._mu, mu)
+    np.testing.assert_array_equal(slam._sigma, sigma)
+
+
+def test_merging_keeps_the_state_consistent_and_the_loop_closed():
+    plain_slam, plain, _, true = run(SlamConfig())
+    config = SlamConfig.from_dict(
+        {"filter": {"prune_covered_distance": 0.1, "prune_idle_steps": 5, "prune_merge": True}}
+    )
+    slam, beliefs, _, _ = run(config)
+    merged = [i for b in beliefs for i in b.pruned]
+    assert merged and len(set(merged)) == len(merged)
+    assert [lm.ref for lm in slam._landmarks] == [3 + 2 * i for i in range(len(slam._landmarks))]
+    np.testing.assert_array_equal(slam._sigma, slam._sigma.T)
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0.0
+    err = np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2]))
+    plain_err = np.hypot(*(plain[-1].pose[:2] - true[-1, :2]))
+    assert err < max(0.2, 2.0 * plain_err)
+
+
 def test_pruning_is_off_by_default_and_validated():
     assert SlamConfig().filter.prune_covered_distance == 0.0
     assert SlamConfig.thesis().filter.prune_covered_distance == 0.0
@@ -108,6 +203,10 @@ def test_pruning_is_off_by_default_and_validated():
         {"prune_covered_fraction": 1.5},
         {"prune_idle_steps": 0},
         {"prune_idle_steps": True},
+        {"prune_merge_max_offset": 0.0},
+        {"prune_merge_sigma": -1.0},
+        {"prune_merge_probability": 1.0},
+        {"prune_merge": "yes"},
     ):
         name = next(iter(bad))
         with pytest.raises(ValueError, match=name):

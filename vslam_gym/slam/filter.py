@@ -33,13 +33,14 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from scipy.special import gammaincinv
 
 from vslam_gym.config_utils import check_keys
 from vslam_gym.slam.config import FilterConfig, ModelConfig, SensorConfig
 from vslam_gym.slam.creation import create_model, initial_grouping
 from vslam_gym.slam.creation import point_covariances as _point_covariances
 from vslam_gym.slam.detection import detect_many, model_parts
-from vslam_gym.slam.gaussian import make_linearization, symmetrize
+from vslam_gym.slam.gaussian import inflated_information, make_linearization, symmetrize
 from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.icp import (
     IcpConfig,
@@ -64,7 +65,14 @@ from vslam_gym.slam.motion import (
     odometry_noise,
     relative_motion_update,
 )
-from vslam_gym.slam.pruning import covered_fraction, object_segments, sample_segments
+from vslam_gym.slam.pruning import (
+    TranslationFit,
+    covered_fraction,
+    fit_translation,
+    object_segments,
+    sample_segments,
+    segment_normals,
+)
 from vslam_gym.slam.scan import Scan
 from vslam_gym.slam.scan_matching import (
     LocalMap,
@@ -1074,7 +1082,10 @@ class VertexSLAM:
                 k2,
                 upd.A_vx,
                 upd.b_vx,
-                self.config.filter.observation_information_scale * upd.K_obs,
+                inflated_information(
+                    self.config.filter.observation_information_scale * upd.K_obs,
+                    self.config.filter.observation_model_sigma,
+                ),
             )
         except (ValueError, np.linalg.LinAlgError):  # UpdateError, degenerate geometry, ...
             return "failed"
@@ -1219,8 +1230,9 @@ class VertexSLAM:
                     mu_r = mu_r + select_pose @ pose
                     a2[:, 2] = rotation_columns(model.mean, mu_r)
                 b2 = model.mean.reshape(-1) - a2 @ mu_r
+                k3 = inflated_information(k_v, self.config.filter.observation_model_sigma)
                 mu, sigma, cond = state_space_update(
-                    self._mu, self._sigma, None, a2, b2, k_v, fit.A_vx, fit.b_vx, k_v
+                    self._mu, self._sigma, None, a2, b2, k_v, fit.A_vx, fit.b_vx, k3
                 )
             else:
                 mu, sigma, cond = augment_landmark(
@@ -1267,12 +1279,17 @@ class VertexSLAM:
         ``FilterConfig.prune_covered_distance``: each landmark is tested once per idle
         period (the first measurement update it has been idle ``prune_idle_steps``
         for), against the landmarks near it (references within the sum of the object
-        radii plus the distance). A covered landmark goes when its reference covariance
-        trace is at least its coverer's; otherwise the better known one stays and the
-        coverer goes instead, if it is idle and covered by it.
+        radii plus the distance, plus ``prune_merge_max_offset`` when merging). A
+        covered landmark goes when its reference covariance trace is at least its
+        coverer's; otherwise the better known one stays and the coverer goes instead,
+        if it is idle and covered by it. With ``prune_merge`` the coverage is measured
+        after the offset that aligns the two (:func:`fit_translation`), and a landmark
+        goes only once that offset has been fused (:meth:`_merge_duplicate`).
         """
         cfg = self.config.filter
         distance, need = cfg.prune_covered_distance, cfg.prune_covered_fraction
+        merge = cfg.prune_merge
+        reach = distance + (cfg.prune_merge_max_offset if merge else 0.0)
         threshold = self.config.model.unknown_threshold
         idle = [
             lm
@@ -1283,21 +1300,45 @@ class VertexSLAM:
             return ()
         refs = self._refs()[:, :REF_DIM]
         radii = np.array([lm.radius for lm in self._landmarks])
-        samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # id -> (points, weights)
+        samples: dict[int, tuple[np.ndarray, ...]] = {}  # id -> (points, weights, normals)
+        fits: dict[tuple[int, int], TranslationFit] = {}  # (covered, coverer) ids -> fit
 
         def covered(a: _Landmark, b: _Landmark) -> bool:
             """Object lines of ``a`` covered by those of ``b``."""
-            obj = self._model(b).u <= threshold
+            model = self._model(b)
+            obj = model.u <= threshold
             if not np.any(obj):
                 return False
             if a.id not in samples:
                 segments = object_segments(self._model(a), threshold)
-                samples[a.id] = sample_segments(segments, 0.5 * distance)
-            points, weights = samples[a.id]
+                points, weights, seg = sample_segments(segments, 0.5 * distance)
+                samples[a.id] = (points, weights, segment_normals(segments)[seg])
+            points, weights, normals = samples[a.id]
             if points.shape[0] == 0:
                 return False
-            near = _segment_distances(points, [self._geometry(b).subset(obj)])[0]
+            if merge:
+                fit = fit_translation(
+                    points,
+                    weights,
+                    normals,
+                    object_segments(model, threshold),
+                    cfg.prune_merge_max_offset,
+                )
+                fits[(a.id, b.id)] = fit
+                near = fit.distances
+            else:
+                near = _segment_distances(points, [self._geometry(b).subset(obj)])[0]
             return covered_fraction(weights, near, distance) >= need
+
+        def remove(victim: _Landmark, keeper: _Landmark) -> bool:
+            """Mark ``victim`` (covered by ``keeper``) removed; False if the merge fails."""
+            if merge:
+                if not self._merge_duplicate(victim, keeper, fits[(victim.id, keeper.id)]):
+                    return False
+                self._refresh_models()  # every mean may have moved
+                samples.clear()
+            removed.add(victim.id)
+            return True
 
         def uncertainty(lm: _Landmark) -> float:
             r = slice(lm.ref, lm.ref + REF_DIM)
@@ -1310,21 +1351,71 @@ class VertexSLAM:
                 continue
             i = self._index(lm)
             gap = np.hypot(*(refs - refs[i]).T) - radii - radii[i]
-            for j in np.flatnonzero(gap <= distance).tolist():
+            for j in np.flatnonzero(gap <= reach).tolist():
                 other = self._landmarks[j]
                 if other is lm or other.id in removed or not covered(lm, other):
                     continue
                 if uncertainty(lm) >= uncertainty(other):
-                    removed.add(lm.id)
-                    break
+                    if remove(lm, other):
+                        break
+                    continue
                 # The covered landmark is the better anchored: keep it; the other goes
                 # instead if it is covered too and idle.
                 other_idle = self._measurements - other.last_seen >= cfg.prune_idle_steps
                 if other_idle and covered(other, lm):
-                    removed.add(other.id)
+                    remove(other, lm)
         if removed:
             self._remove_landmarks(removed)
         return tuple(sorted(removed))
+
+    def _merge_duplicate(self, victim: _Landmark, keeper: _Landmark, fit: TranslationFit) -> bool:
+        """Fuse "``victim`` + offset lies on ``keeper``" into the state; False if gated out.
+
+        A relative measurement of the two references along the offset's constrained
+        directions ``D`` (:class:`~vslam_gym.slam.pruning.TranslationFit`):
+        ``y = D^T (J_v r_v - J_k r_k)``, where ``J`` is the mean derivative of a
+        landmark's object vertices by its reference (rows of ``A`` in ``p(v | r)``); the
+        fit says ``y`` is ``D^T offset`` more than at the current means. Its noise is
+        the mean conditional covariance of both landmarks' object vertices along ``D``
+        plus ``prune_merge_sigma^2``. The update is an EKF update of the whole state
+        (it moves the pose and every correlated landmark: a loop closure when the two
+        were built before and after a drift), applied only when the innovation passes
+        the chi-square gate of probability ``prune_merge_probability``.
+        """
+        cfg = self.config.filter
+        u = fit.directions
+        k = u.shape[1]
+        if k == 0:
+            return False
+        d = self._ref_dim
+        h = np.zeros((k, self._mu.size))
+        noise = cfg.prune_merge_sigma**2 * np.eye(k)
+        for lm, sign in ((victim, 1.0), (keeper, -1.0)):
+            jac, cov = self._object_vertex_moments(lm)
+            h[:, lm.ref : lm.ref + d] += sign * (u.T @ jac)
+            noise += u.T @ cov @ u
+        ph = self._sigma @ h.T
+        s = symmetrize(h @ ph + noise)
+        nu = u.T @ fit.offset
+        try:
+            white = np.linalg.solve(np.linalg.cholesky(s), nu)
+        except np.linalg.LinAlgError:
+            return False
+        if not float(white @ white) <= 2.0 * gammaincinv(0.5 * k, cfg.prune_merge_probability):
+            return False
+        gain = np.linalg.solve(s, ph.T).T  # (n, k)
+        self._mu = self._mu + gain @ nu
+        self._sigma = symmetrize(self._sigma - gain @ s @ gain.T)
+        return True
+
+    def _object_vertex_moments(self, lm: _Landmark) -> tuple[np.ndarray, np.ndarray]:
+        """Mean of ``dv / dr`` ``(2, d)`` and of ``Cov(v | r)`` ``(2, 2)`` over object vertices."""
+        k = lm.cond.b.size // 2
+        objects = self._snapshot.objects[self._index(lm), :k]
+        jac = lm.cond.A.reshape(k, 2, -1)[objects].mean(axis=0)
+        idx = np.flatnonzero(objects)
+        blocks = lm.cond.covariance().reshape(k, 2, k, 2)[idx, :, idx, :]
+        return jac, blocks.mean(axis=0)
 
     def _remove_landmarks(self, ids: set[int]) -> None:
         """Marginalise the landmarks ``ids`` out of the state (drop their rows/columns)."""

@@ -80,6 +80,20 @@ def symmetrize(S: np.ndarray) -> np.ndarray:
     return 0.5 * (S + np.swapaxes(S, -1, -2))
 
 
+def inflated_information(K: np.ndarray, sigma: float) -> np.ndarray:
+    """Information of a Gaussian whose covariance ``K^-1`` gains ``sigma^2 I``.
+
+    ``K' = K (I + sigma^2 K)^-1 = (K^-1 + sigma^2 I)^-1``, defined for a singular
+    positive semi-definite ``K`` too: a direction without information stays without,
+    and every eigenvalue ``l`` becomes ``l / (1 + sigma^2 l) < 1 / sigma^2``. ``sigma``
+    in the units of the variables (m for vertex coordinates); 0 returns ``K``.
+    """
+    K = _as_square(K, "information")
+    if sigma == 0.0:
+        return K
+    return symmetrize(np.linalg.solve(np.eye(K.shape[-1]) + sigma * sigma * K, K))
+
+
 def _min_eigenvalue(S: np.ndarray) -> float:
     """Smallest eigenvalue of the symmetric part of ``S`` over the whole batch."""
     if S.shape[-1] == 0:

@@ -3,18 +3,41 @@
 A light form of the thesis's future work "merging landmarks of one object" (SPEC
 section 11): a landmark whose object lines lie (almost) entirely on another landmark's
 object lines adds nothing to the map that the other does not hold, and the filter may
-remove it (``FilterConfig.prune_covered_distance``). This module holds the sampling and
-the coverage measure (vertex means only, world frame, metres); the point-to-line
-distances and the state surgery are the filter's.
+remove it (``FilterConfig.prune_covered_distance``); with ``prune_merge`` the offset
+between the two (:func:`fit_translation`) is first fused into the state as a relative
+measurement of their references. This module holds the sampling, the coverage measure
+and the offset fit (vertex means only, world frame, metres); the state surgery is the
+filter's.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from vslam_gym.slam.landmark import LandmarkModel
 
-__all__ = ["covered_fraction", "object_segments", "sample_segments"]
+__all__ = [
+    "TranslationFit",
+    "covered_fraction",
+    "fit_translation",
+    "object_segments",
+    "sample_segments",
+    "segment_normals",
+]
+
+MIN_NORMAL_COS = float(np.cos(np.deg2rad(30.0)))
+"""A sample is matched only to lines whose free-side normal is within 30 degrees of its
+own line's: the two faces of a thin wall are never matched."""
+MIN_CONSTRAINT = 0.05
+"""An offset direction is constrained when at least this fraction of the matched length
+has its normal along it (eigenvalue of the normalised normal scatter): a straight wall
+constrains only its normal direction."""
+FIT_ITERATIONS = 10
+"""Match-and-solve rounds of :func:`fit_translation`."""
+FIT_TOLERANCE = 1e-4
+"""A round that moves the offset less than this [m] ends the fit."""
 
 
 def object_segments(model: LandmarkModel, unknown_threshold: float) -> np.ndarray:
@@ -26,7 +49,9 @@ def object_segments(model: LandmarkModel, unknown_threshold: float) -> np.ndarra
     return model.mean[lines] if lines.size else np.zeros((0, 2, 2))
 
 
-def sample_segments(segments: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+def sample_segments(
+    segments: np.ndarray, spacing: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points along segments, at most ``spacing`` [m] apart, and the length each stands for.
 
     Args:
@@ -34,11 +59,12 @@ def sample_segments(segments: np.ndarray, spacing: float) -> tuple[np.ndarray, n
         spacing: the largest distance [m] between neighbouring samples of a segment, > 0.
 
     Returns:
-        ``(points (p, 2), weights (p,))``: each segment's samples include both ends and
-        share its length equally, so ``weights.sum()`` is the total length [m].
+        ``(points (p, 2), weights (p,), segment (p,))``: each segment's samples include
+        both ends and share its length equally, so ``weights.sum()`` is the total length
+        [m]; ``segment`` is the index of the segment each sample lies on.
     """
     if segments.shape[0] == 0:
-        return np.zeros((0, 2)), np.zeros(0)
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=int)
     start, end = segments[:, 0], segments[:, 1]
     length = np.hypot(*(end - start).T)
     counts = np.maximum(np.ceil(length / spacing).astype(int), 1) + 1
@@ -46,7 +72,19 @@ def sample_segments(segments: np.ndarray, spacing: float) -> tuple[np.ndarray, n
     first = np.repeat(np.cumsum(counts) - counts, counts)
     t = (np.arange(seg.size) - first) / (counts[seg] - 1)
     points = start[seg] + t[:, None] * (end - start)[seg]
-    return points, (length / counts)[seg]
+    return points, (length / counts)[seg], seg
+
+
+def segment_normals(segments: np.ndarray) -> np.ndarray:
+    """``(m, 2)`` free-side (right-hand) unit normals of segments ``(m, 2, 2)``.
+
+    ``n = [dy, -dx] / length`` for the direction ``d = end - start`` (the convention of
+    the ICP, 4.3.12); zero for a zero-length segment.
+    """
+    d = segments[:, 1] - segments[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    inv = np.divide(1.0, length, out=np.zeros_like(length), where=length > 0)
+    return np.stack([d[:, 1] * inv, -d[:, 0] * inv], axis=1)
 
 
 def covered_fraction(weights: np.ndarray, distances: np.ndarray, distance: float) -> float:
@@ -66,3 +104,89 @@ def covered_fraction(weights: np.ndarray, distances: np.ndarray, distance: float
     if total <= 0.0:
         return 0.0
     return float(weights[distances <= distance].sum()) / total
+
+
+@dataclass(frozen=True)
+class TranslationFit:
+    """The offset that moves one landmark's object lines onto another's (:func:`fit_translation`).
+
+    Attributes:
+        offset: ``(2,)`` [m], world frame: sampled points ``+ offset`` lie on the other
+            landmark's lines. Zero along unconstrained directions.
+        directions: ``(2, k)`` orthonormal directions the matched lines constrain
+            (``k`` in 0..2): the offset is measured along these only.
+        distances: ``(p,)`` each sample's distance [m] after the offset to the nearest
+            other line facing the same way (``inf`` when none does).
+    """
+
+    offset: np.ndarray
+    directions: np.ndarray
+    distances: np.ndarray
+
+
+def _nearest_facing(
+    points: np.ndarray, normals: np.ndarray, segments: np.ndarray, seg_normals: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Index and distance of each point's nearest segment facing its way (inf: none)."""
+    a = segments[:, 0]
+    ab = segments[:, 1] - a
+    length2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
+    ap = points[:, None, :] - a[None]
+    s = np.clip(np.einsum("pmi,mi->pm", ap, ab) / length2, 0.0, 1.0)
+    diff = ap - s[:, :, None] * ab[None]
+    d2 = np.einsum("pmi,pmi->pm", diff, diff)
+    d2 = np.where(normals @ seg_normals.T >= MIN_NORMAL_COS, d2, np.inf)
+    j = np.argmin(d2, axis=1)
+    return j, np.sqrt(d2[np.arange(j.size), j])
+
+
+def fit_translation(
+    points: np.ndarray,
+    weights: np.ndarray,
+    normals: np.ndarray,
+    segments: np.ndarray,
+    max_distance: float,
+) -> TranslationFit:
+    """Least-squares translation of samples onto segments, point to line (translation-only ICP).
+
+    Each round matches every sample to the nearest segment whose normal is within 30
+    degrees of the sample's (:data:`MIN_NORMAL_COS`), uses the matches within
+    ``max_distance`` [m], and solves ``min sum w (n . (p + t - a))^2`` for ``t`` in the
+    directions the matched normals constrain (:data:`MIN_CONSTRAINT`); a straight wall
+    fixes only its normal offset.
+
+    Args:
+        points: ``(p, 2)`` samples of one landmark's object lines [m] (world frame).
+        weights: ``(p,)`` the length each sample stands for [m].
+        normals: ``(p, 2)`` free-side normal of each sample's line.
+        segments: ``(m, 2, 2)`` the other landmark's object lines [m]; ``m >= 1``.
+        max_distance: matches farther than this [m] are not used.
+
+    Returns:
+        The offset, its constrained directions and the distances after it.
+    """
+    seg_normals = segment_normals(segments)
+    t = np.zeros(2)
+    directions = np.zeros((2, 0))
+    for _ in range(FIT_ITERATIONS):
+        p = points + t
+        j, dist = _nearest_facing(p, normals, segments, seg_normals)
+        use = dist <= max_distance
+        if not np.any(use):
+            return TranslationFit(np.zeros(2), np.zeros((2, 0)), dist)
+        n, w = seg_normals[j[use]], weights[use]
+        e = np.einsum("pi,pi->p", p[use] - segments[j[use], 0], n)  # signed, free side > 0
+        scatter = (n * w[:, None]).T @ n
+        vals, vecs = np.linalg.eigh(scatter / w.sum())
+        directions = vecs[:, vals >= MIN_CONSTRAINT]
+        if directions.shape[1] == 0:
+            break
+        # t in span(directions): (D^T M D) c = -D^T sum w e n
+        rhs = -directions.T @ (n.T @ (w * e))
+        c = np.linalg.solve(directions.T @ scatter @ directions, rhs)
+        step = directions @ c
+        t = t + step
+        if np.hypot(*step) < FIT_TOLERANCE:
+            break
+    _, dist = _nearest_facing(points + t, normals, segments, seg_normals)
+    return TranslationFit(t, directions, dist)
