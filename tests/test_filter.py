@@ -475,8 +475,16 @@ def _turned_update(config, turn=0.05, moved=0.0):
 
 def test_verify_heading_sigma_rejects_turns_the_alignment_does_not_support():
     def config(verify, pose="icp"):
+        # Without the model-error floor: with it the tight odometry prior keeps the
+        # heading near 0.001 rad, and there is no turn to verify.
         return SlamConfig.from_dict(
-            {"filter": {"verify_heading_sigma": verify, "association_pose": pose}}
+            {
+                "filter": {
+                    "verify_heading_sigma": verify,
+                    "association_pose": pose,
+                    "observation_model_sigma": 0.0,
+                }
+            }
         )
 
     # The ICP pose says the robot turned by about 0.05 rad: the update turns the heading
@@ -510,6 +518,7 @@ def test_verify_position_sigma_rejects_moves_off_the_alignment_segment():
                     "verify_position_sigma": verify,
                     "verify_heading_sigma": 0.0,
                     "association_pose": pose,
+                    "observation_model_sigma": 0.0,  # figures below measured without
                 }
             }
         )
