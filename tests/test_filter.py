@@ -555,3 +555,17 @@ def test_observation_model_sigma_lowers_the_pose_nees_and_keeps_the_loop(seed):
         assert np.linalg.eigvalsh(slam._sigma).min() > 0
     # measured: seed 0 55 -> 27, seed 1 93 -> 3.7 (3 for a consistent filter)
     assert nees[0.05] < 0.6 * nees[0.0], nees
+
+
+def test_observation_model_heading_sigma_keeps_the_heading_less_certain():
+    sd = {}
+    for sigma in (0.0, 0.02):
+        config = SlamConfig.from_dict({"filter": {"observation_model_heading_sigma": sigma}})
+        slam, beliefs, odo_err, true = run(config, seed=0)
+        sd[sigma] = np.median([np.sqrt(b.pose_cov[2, 2]) for b in beliefs])
+        assert np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2])) < 0.2 * odo_err[-1]
+        assert np.linalg.eigvalsh(slam._sigma).min() > 0
+    # measured: median heading sigma 0.0069 -> 0.0091 rad
+    assert sd[0.02] > 1.2 * sd[0.0], sd
+    with pytest.raises(ValueError, match="observation_model_heading_sigma"):
+        SlamConfig.from_dict({"filter": {"observation_model_heading_sigma": -0.01}})

@@ -427,3 +427,17 @@ def test_inflated_information_adds_covariance_and_keeps_null_directions():
     np.testing.assert_array_equal(capped[2:], 0.0)
     np.testing.assert_allclose(np.diag(capped)[:2], 1.0 / (np.array([1e-6, 0.25e-6]) + sigma**2))
     assert np.linalg.eigvalsh(capped).max() < 1.0 / sigma**2
+
+
+def test_inflated_information_with_an_extra_covariance():
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(4, 4))
+    k = a @ a.T + 0.1 * np.eye(4)
+    c = rng.normal(size=4)
+    extra = 0.01 * np.outer(c, c)  # a rank-one term, like a rotation of all vertices
+    inflated = inflated_information(k, 0.05, extra)
+    expected = np.linalg.inv(np.linalg.inv(k) + 0.05**2 * np.eye(4) + extra)
+    np.testing.assert_allclose(inflated, expected, rtol=1e-10)
+    np.testing.assert_allclose(
+        inflated_information(k, 0.0, extra), np.linalg.inv(np.linalg.inv(k) + extra), rtol=1e-10
+    )

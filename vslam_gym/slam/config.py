@@ -420,6 +420,15 @@ class FilterConfig:
             / 0.462 -> 0.259 / 0.125 / 0.055 / 0.396 m (house seeds 10-19 0.331 ->
             0.527, t +1.4). 0.1 measured NEES lower still (house 244) but ATE mixed
             (small 0.097, t -3.0; single_landmark 0.272 and curved 0.144, t +1.4).
+        observation_model_heading_sigma: model error [rad] of a landmark's orientation:
+            ``Phi3``'s covariance (as for ``observation_model_sigma``) also gains a
+            rotation of all the observed vertices about the landmark's reference point
+            by this standard deviation. A point reference keeps no orientation in the
+            state: a landmark's orientation is fixed in ``p(v | r)`` at the heading it
+            was made at, and every later observation uses it as an independent compass
+            although its error is the creating pose's heading error; the pose heading
+            then grows overconfident (on ``house`` 10-20 standard deviations off). 0
+            (the thesis): off.
         min_object_beam_fraction: a candidate landmark that passes the detection test is
             still rejected when fewer than this fraction of the set's beams are assigned
             to its object lines (``u <= unknown_threshold``); 0 in the thesis. A set that
@@ -610,6 +619,7 @@ class FilterConfig:
     unknown_chain_tolerance: float = 0.3
     observation_information_scale: float = 1.0
     observation_model_sigma: float = 0.05
+    observation_model_heading_sigma: float = 0.0
     min_object_beam_fraction: float = 0.0
     prealign: str = "none"
     creation_overlap_distance: float = 0.0
@@ -663,6 +673,7 @@ class FilterConfig:
             "prune_covered_distance",
             "prune_merge_sigma",
             "observation_model_sigma",
+            "observation_model_heading_sigma",
         ):
             value = getattr(self, name)
             if not value >= 0.0:  # NaN fails too

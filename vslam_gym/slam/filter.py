@@ -1090,9 +1090,11 @@ class VertexSLAM:
                 k2,
                 upd.A_vx,
                 upd.b_vx,
-                inflated_information(
+                self._observation_information(
                     self.config.filter.observation_information_scale * upd.K_obs,
-                    self.config.filter.observation_model_sigma,
+                    upd.A_vx,
+                    upd.b_vx,
+                    self._mu[lm.ref : lm.ref + REF_DIM],
                 ),
             )
         except (ValueError, np.linalg.LinAlgError):  # UpdateError, degenerate geometry, ...
@@ -1116,6 +1118,24 @@ class VertexSLAM:
             self._index(lm), lm.cond, lm.u, lm.closed, self.config.model.unknown_threshold
         )
         return "updated"
+
+    def _observation_information(
+        self, k_obs: np.ndarray, a_vx: np.ndarray, b_vx: np.ndarray, reference: np.ndarray
+    ) -> np.ndarray:
+        """``Phi3``'s information with the model errors of the config added.
+
+        ``observation_model_sigma`` per vertex coordinate, and
+        ``observation_model_heading_sigma`` as a rotation of all the observed vertices
+        (at the current pose: ``A_vx x + b_vx``) about the landmark's ``reference``
+        point [m].
+        """
+        cfg = self.config.filter
+        extra = None
+        if cfg.observation_model_heading_sigma > 0.0:
+            vertices = a_vx @ self._mu[:3] + b_vx
+            c = rotation_columns(vertices, reference)
+            extra = cfg.observation_model_heading_sigma**2 * np.outer(c, c)
+        return inflated_information(k_obs, cfg.observation_model_sigma, extra)
 
     def _verified(self, mu: np.ndarray, icp_pose: np.ndarray) -> bool:
         """Whether an update's new pose agrees with its ICP pose (update verification).
@@ -1238,7 +1258,7 @@ class VertexSLAM:
                     mu_r = mu_r + select_pose @ pose
                     a2[:, 2] = rotation_columns(model.mean, mu_r)
                 b2 = model.mean.reshape(-1) - a2 @ mu_r
-                k3 = inflated_information(k_v, self.config.filter.observation_model_sigma)
+                k3 = self._observation_information(k_v, fit.A_vx, fit.b_vx, mu_r[:REF_DIM])
                 mu, sigma, cond = state_space_update(
                     self._mu, self._sigma, None, a2, b2, k_v, fit.A_vx, fit.b_vx, k3
                 )

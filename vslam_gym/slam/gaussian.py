@@ -80,18 +80,25 @@ def symmetrize(S: np.ndarray) -> np.ndarray:
     return 0.5 * (S + np.swapaxes(S, -1, -2))
 
 
-def inflated_information(K: np.ndarray, sigma: float) -> np.ndarray:
-    """Information of a Gaussian whose covariance ``K^-1`` gains ``sigma^2 I``.
+def inflated_information(
+    K: np.ndarray, sigma: float, extra: np.ndarray | None = None
+) -> np.ndarray:
+    """Information of a Gaussian whose covariance ``K^-1`` gains ``Q = sigma^2 I + extra``.
 
-    ``K' = K (I + sigma^2 K)^-1 = (K^-1 + sigma^2 I)^-1``, defined for a singular
-    positive semi-definite ``K`` too: a direction without information stays without,
-    and every eigenvalue ``l`` becomes ``l / (1 + sigma^2 l) < 1 / sigma^2``. ``sigma``
-    in the units of the variables (m for vertex coordinates); 0 returns ``K``.
+    ``K' = (I + K Q)^-1 K = (K^-1 + Q)^-1``, defined for a singular positive
+    semi-definite ``K`` too: a direction without information stays without, and with
+    ``extra`` None every eigenvalue ``l`` becomes ``l / (1 + sigma^2 l) < 1 / sigma^2``.
+    ``sigma`` in the units of the variables (m for vertex coordinates); ``extra`` a
+    positive semi-definite ``(n, n)`` covariance in the same units. ``sigma`` 0 and no
+    ``extra`` return ``K``.
     """
     K = _as_square(K, "information")
-    if sigma == 0.0:
+    if sigma == 0.0 and extra is None:
         return K
-    return symmetrize(np.linalg.solve(np.eye(K.shape[-1]) + sigma * sigma * K, K))
+    q = sigma * sigma * np.eye(K.shape[-1])
+    if extra is not None:
+        q = q + extra
+    return symmetrize(np.linalg.solve(np.eye(K.shape[-1]) + K @ q, K))
 
 
 def _min_eigenvalue(S: np.ndarray) -> float:
