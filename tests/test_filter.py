@@ -547,7 +547,9 @@ def test_observation_model_sigma_lowers_the_pose_nees_and_keeps_the_loop(seed):
 
     nees = {}
     for sigma in (0.0, 0.05):
-        config = SlamConfig.from_dict({"filter": {"observation_model_sigma": sigma}})
+        config = SlamConfig.from_dict(
+            {"filter": {"observation_model_sigma": sigma, "observation_model_heading_sigma": 0.0}}
+        )
         slam, beliefs, odo_err, true = run(config, seed=seed)
         est = np.array([b.pose for b in beliefs])
         nees[sigma] = pose_nees(est, np.array([b.pose_cov for b in beliefs]), true[1:]).mean()

@@ -174,6 +174,7 @@ class SlamConfig:
                 # logged: Intel 0.57 / 0.75 -> 0.60 / 0.70 m, ACES 1.43 / 1.31 -> 1.33 /
                 # 1.42 m).
                 observation_model_sigma=0.0,
+                observation_model_heading_sigma=0.0,
             ),
             # No freeze_on_cycle: measured no better here (full logs, seeds 0-4, position
             # ATE mean: Intel 0.61 -> 0.59 m, ACES 1.36 -> 1.44 m; step time unchanged).
@@ -206,6 +207,7 @@ class SlamConfig:
                 # / small / curved / house 0.26 / 0.21 / 0.21 / 0.64 -> 0.30 / 0.30 /
                 # 0.17 / 0.48 m; small t +2.7, the others within the seed spread).
                 observation_model_sigma=0.0,
+                observation_model_heading_sigma=0.0,
             )
         )
 
