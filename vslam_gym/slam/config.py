@@ -435,7 +435,8 @@ class FilterConfig:
             house seeds 10-19 0.274 -> 0.258, t -0.4), final error 0.259 / 0.125 /
             0.055 / 0.396 -> 0.285 / 0.058 / 0.035 / 0.189 m (house t -2.6; seeds 10-19
             0.527 -> 0.447), mean pose NEES 22 / 107 / 145 / 417 -> 13 / 47 / 95 / 155.
-            0.02 measured between the two (house 0.211 m, final 0.353 m).
+            0.02 measured between the two (house 0.211 m, final 0.353 m); 0.005 worse
+            (house seeds 0-5 0.134 -> 0.205 m, t +2.6).
         min_object_beam_fraction: a candidate landmark that passes the detection test is
             still rejected when fewer than this fraction of the set's beams are assigned
             to its object lines (``u <= unknown_threshold``); 0 in the thesis. A set that
