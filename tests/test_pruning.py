@@ -15,7 +15,6 @@ from vslam_gym.slam.pruning import (
     fit_translation,
     object_segments,
     sample_segments,
-    segment_normals,
 )
 
 
@@ -105,20 +104,28 @@ def test_removal_is_a_marginalisation():
     np.testing.assert_array_equal(slam._refs(), [lm.reference for lm in after.landmarks])
 
 
+def _polyline(vertices):
+    """Open object polyline (every line an object line) and its line geometry."""
+    return line_geometry(
+        LandmarkModel(vertices, np.eye(2 * len(vertices)), np.zeros(len(vertices) - 1), False)
+    )
+
+
 def _fit(victim, keeper, max_distance=0.5):
     """fit_translation of the polyline ``victim`` onto ``keeper`` (vertex lists)."""
     segs = np.stack([victim[:-1], victim[1:]], axis=1)
     points, weights, seg = sample_segments(segs, 0.05)
-    keeper_segs = np.stack([keeper[:-1], keeper[1:]], axis=1)
-    return fit_translation(points, weights, segment_normals(segs)[seg], keeper_segs, max_distance)
+    lines = _polyline(victim)
+    normals = np.stack([lines.nx, lines.ny], axis=1)[seg]
+    return fit_translation(points, weights, normals, _polyline(keeper), max_distance)
 
 
 L_SHAPE = np.array([(0.0, 2.0), (0.0, 0.0), (2.0, 0.0)])  # right-hand free side: x < 0, y < 0
 
 
-def test_segment_normals_point_to_the_free_side():
-    normals = segment_normals(np.stack([L_SHAPE[:-1], L_SHAPE[1:]], 1))
-    np.testing.assert_allclose(normals, [(-1, 0), (0, -1)])
+def test_fit_uses_the_icp_normals_which_point_to_the_free_side():
+    lines = _polyline(L_SHAPE)
+    np.testing.assert_allclose(np.stack([lines.nx, lines.ny], 1), [(-1, 0), (0, -1)])
 
 
 def test_fit_recovers_the_offset_of_a_corner():

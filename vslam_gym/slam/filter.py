@@ -71,7 +71,6 @@ from vslam_gym.slam.pruning import (
     fit_translation,
     object_segments,
     sample_segments,
-    segment_normals,
 )
 from vslam_gym.slam.scan import Scan
 from vslam_gym.slam.scan_matching import (
@@ -1336,29 +1335,26 @@ class VertexSLAM:
 
         def covered(a: _Landmark, b: _Landmark) -> bool:
             """Object lines of ``a`` covered by those of ``b``."""
-            model = self._model(b)
-            obj = model.u <= threshold
+            obj = self._model(b).u <= threshold
             if not np.any(obj):
                 return False
             if a.id not in samples:
-                segments = object_segments(self._model(a), threshold)
-                points, weights, seg = sample_segments(segments, 0.5 * distance)
-                samples[a.id] = (points, weights, segment_normals(segments)[seg])
+                model = self._model(a)
+                points, weights, seg = sample_segments(
+                    object_segments(model, threshold), 0.5 * distance
+                )
+                lines = self._geometry(a).subset(model.u <= threshold)  # same line order
+                samples[a.id] = (points, weights, np.stack([lines.nx, lines.ny], 1)[seg])
             points, weights, normals = samples[a.id]
             if points.shape[0] == 0:
                 return False
+            lines_b = self._geometry(b).subset(obj)
             if merge:
-                fit = fit_translation(
-                    points,
-                    weights,
-                    normals,
-                    object_segments(model, threshold),
-                    cfg.prune_merge_max_offset,
-                )
+                fit = fit_translation(points, weights, normals, lines_b, cfg.prune_merge_max_offset)
                 fits[(a.id, b.id)] = fit
                 near = fit.distances
             else:
-                near = _segment_distances(points, [self._geometry(b).subset(obj)])[0]
+                near = _segment_distances(points, [lines_b])[0]
             return covered_fraction(weights, near, distance) >= need
 
         def remove(victim: _Landmark, keeper: _Landmark) -> bool:

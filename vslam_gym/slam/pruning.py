@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vslam_gym.slam.icp import LineGeometry
 from vslam_gym.slam.landmark import LandmarkModel
 
 __all__ = [
@@ -24,7 +25,6 @@ __all__ = [
     "fit_translation",
     "object_segments",
     "sample_segments",
-    "segment_normals",
 ]
 
 MIN_NORMAL_COS = float(np.cos(np.deg2rad(30.0)))
@@ -75,18 +75,6 @@ def sample_segments(
     return points, (length / counts)[seg], seg
 
 
-def segment_normals(segments: np.ndarray) -> np.ndarray:
-    """``(m, 2)`` free-side (right-hand) unit normals of segments ``(m, 2, 2)``.
-
-    ``n = [dy, -dx] / length`` for the direction ``d = end - start`` (the convention of
-    the ICP, 4.3.12); zero for a zero-length segment.
-    """
-    d = segments[:, 1] - segments[:, 0]
-    length = np.hypot(d[:, 0], d[:, 1])
-    inv = np.divide(1.0, length, out=np.zeros_like(length), where=length > 0)
-    return np.stack([d[:, 1] * inv, -d[:, 0] * inv], axis=1)
-
-
 def covered_fraction(weights: np.ndarray, distances: np.ndarray, distance: float) -> float:
     """Length-weighted fraction of sampled object lines within ``distance`` [m] of another's.
 
@@ -125,17 +113,16 @@ class TranslationFit:
 
 
 def _nearest_facing(
-    points: np.ndarray, normals: np.ndarray, segments: np.ndarray, seg_normals: np.ndarray
+    points: np.ndarray, normals: np.ndarray, lines: LineGeometry
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Index and distance of each point's nearest segment facing its way (inf: none)."""
-    a = segments[:, 0]
-    ab = segments[:, 1] - a
-    length2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
-    ap = points[:, None, :] - a[None]
-    s = np.clip(np.einsum("pmi,mi->pm", ap, ab) / length2, 0.0, 1.0)
-    diff = ap - s[:, :, None] * ab[None]
-    d2 = np.einsum("pmi,pmi->pm", diff, diff)
-    d2 = np.where(normals @ seg_normals.T >= MIN_NORMAL_COS, d2, np.inf)
+    """Index and distance of each point's nearest line facing its way (inf: none)."""
+    apx = points[:, 0, None] - lines.ax
+    apy = points[:, 1, None] - lines.ay
+    s = np.clip((apx * lines.abx + apy * lines.aby) * lines.inv_length2, 0.0, 1.0)
+    dx = apx - s * lines.abx
+    dy = apy - s * lines.aby
+    facing = normals[:, 0, None] * lines.nx + normals[:, 1, None] * lines.ny >= MIN_NORMAL_COS
+    d2 = np.where(facing, dx * dx + dy * dy, np.inf)
     j = np.argmin(d2, axis=1)
     return j, np.sqrt(d2[np.arange(j.size), j])
 
@@ -144,12 +131,12 @@ def fit_translation(
     points: np.ndarray,
     weights: np.ndarray,
     normals: np.ndarray,
-    segments: np.ndarray,
+    lines: LineGeometry,
     max_distance: float,
 ) -> TranslationFit:
-    """Least-squares translation of samples onto segments, point to line (translation-only ICP).
+    """Least-squares translation of samples onto lines, point to line (translation-only ICP).
 
-    Each round matches every sample to the nearest segment whose normal is within 30
+    Each round matches every sample to the nearest line segment whose normal is within 30
     degrees of the sample's (:data:`MIN_NORMAL_COS`), uses the matches within
     ``max_distance`` [m], and solves ``min sum w (n . (p + t - a))^2`` for ``t`` in the
     directions the matched normals constrain (:data:`MIN_CONSTRAINT`); a straight wall
@@ -158,24 +145,25 @@ def fit_translation(
     Args:
         points: ``(p, 2)`` samples of one landmark's object lines [m] (world frame).
         weights: ``(p,)`` the length each sample stands for [m].
-        normals: ``(p, 2)`` free-side normal of each sample's line.
-        segments: ``(m, 2, 2)`` the other landmark's object lines [m]; ``m >= 1``.
+        normals: ``(p, 2)`` free-side normal of each sample's line (the ICP's
+            convention, :data:`~vslam_gym.slam.icp.LineGeometry` ``nx, ny``).
+        lines: the other landmark's object lines (``LineGeometry``, at least one).
         max_distance: matches farther than this [m] are not used.
 
     Returns:
         The offset, its constrained directions and the distances after it.
     """
-    seg_normals = segment_normals(segments)
+    line_normals = np.stack([lines.nx, lines.ny], axis=1)
     t = np.zeros(2)
     directions = np.zeros((2, 0))
     for _ in range(FIT_ITERATIONS):
         p = points + t
-        j, dist = _nearest_facing(p, normals, segments, seg_normals)
+        j, dist = _nearest_facing(p, normals, lines)
         use = dist <= max_distance
         if not np.any(use):
             return TranslationFit(np.zeros(2), np.zeros((2, 0)), dist)
-        n, w = seg_normals[j[use]], weights[use]
-        e = np.einsum("pi,pi->p", p[use] - segments[j[use], 0], n)  # signed, free side > 0
+        n, w, k = line_normals[j[use]], weights[use], j[use]
+        e = (p[use, 0] - lines.ax[k]) * n[:, 0] + (p[use, 1] - lines.ay[k]) * n[:, 1]  # > 0 free
         scatter = (n * w[:, None]).T @ n
         vals, vecs = np.linalg.eigh(scatter / w.sum())
         directions = vecs[:, vals >= MIN_CONSTRAINT]
@@ -188,5 +176,5 @@ def fit_translation(
         t = t + step
         if np.hypot(*step) < FIT_TOLERANCE:
             break
-    _, dist = _nearest_facing(points + t, normals, segments, seg_normals)
+    _, dist = _nearest_facing(points + t, normals, lines)
     return TranslationFit(t, directions, dist)
