@@ -7,6 +7,7 @@ import pytest
 from _raycast import bearings_deg, cast, polygon_edges
 from scipy import stats
 
+from vslam_gym.slam import icp
 from vslam_gym.slam.config import SensorConfig
 from vslam_gym.slam.creation import create_model
 from vslam_gym.slam.geometry import polar_to_cartesian
@@ -488,6 +489,54 @@ def test_align_many_equals_align_per_model():
         align_many(points[:2], models, TRUE)
 
 
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        {"point_to_line": True},
+        {"point_to_line": False, "max_iterations": 200},
+        {"point_to_line": True, "max_correspondence_distance": 0.3},
+        {"point_to_line": True, "centre_on_centroid": False},
+    ],
+)
+def test_batched_alignments_agree_with_one_at_a_time(cfg):
+    """More alignments than ``_SEQUENTIAL_AT_MOST`` run side by side (``_align_batch``):
+    each result matches :func:`align` of that set alone, up to round-off."""
+    rng = np.random.default_rng(7)
+    prior = TRUE + OFFSETS[0]
+    models, points = [], []
+    for name in ("L", "zigzag", "box"):
+        for _ in range(2):
+            models.append(model_of(SHAPES[name], rng))
+            points.append(set_points(scan_of(SHAPES[name], TRUE, rng), prior))
+    models.append(models[0])  # an empty set ...
+    points.append(np.zeros((0, 2)))
+    models.append(models[0])  # ... and one behind the model: no line faces it
+    points.append(np.array([[0.0, 9.0], [0.5, 9.2], [1.0, 9.4]]))
+    assert len(models) > icp._SEQUENTIAL_AT_MOST
+    icp_cfg = IcpConfig(**cfg)
+    limits = (SENSOR.max_range, SENSOR.half_fov)
+    many = align_many(points, models, prior, icp_cfg, *limits)
+    reasons = set()
+    for got, pts, model in zip(many, points, models, strict=True):
+        single = align(pts, model, prior, icp_cfg, *limits)
+        reasons.add(single.reason)
+        assert (got.reason, got.n_used, got.frozen) == (
+            single.reason,
+            single.n_used,
+            single.frozen,
+        )
+        # Sums in another order: a slowly converging step may fall below the tolerance
+        # one iteration apart (a step below it moves the points less than 1e-4 m).
+        assert abs(got.iterations - single.iterations) <= 1
+        atol = 1e-9 if got.iterations == single.iterations else icp_cfg.tol_translation
+        # (rtol: an alignment that runs away, e.g. to 1 km without centring, amplifies it)
+        np.testing.assert_allclose(got.pose, single.pose, rtol=1e-6, atol=atol)
+        np.testing.assert_allclose(got.transform, single.transform, rtol=1e-6, atol=atol)
+        assert got.rms == pytest.approx(single.rms, abs=atol) or got.rms == single.rms
+    assert {"converged", "too_few_points"} <= reasons
+    assert all(np.linalg.norm(r.pose[:2] - TRUE[:2]) < 0.05 for r in many[:6])
+
+
 # ----------------------------------------------------------------- cycles
 
 
@@ -558,6 +607,27 @@ def test_freeze_on_cycle_converges_where_the_association_alternates():
     assert not endless.frozen
 
 
+@pytest.mark.parametrize("watch", [{}, {"cycle_returns": 2}, {"freeze_on_cycle": True}])
+def test_batched_cycles_match_single_alignments(watch):
+    """The cycle bookkeeping (association hashes, frozen associations, cycle watches) of
+    alignments run side by side gives the results of each alone."""
+    cfg = IcpConfig(point_to_line=True, **watch)
+    shifts = [np.array([dx, 0.0]) for dx in (0.0, 0.01, -0.01, 0.02, -0.02)]
+    sets = [CYCLE_POINTS + d for d in shifts]
+    many = align_many(sets, [CYCLE_MODEL] * len(sets), CYCLE_PRIOR, cfg, 30.0, np.pi / 2)
+    for got, pts in zip(many, sets, strict=True):
+        single = align(pts, CYCLE_MODEL, CYCLE_PRIOR, cfg, 30.0, np.pi / 2)
+        assert (got.reason, got.iterations, got.n_used, got.frozen) == (
+            single.reason,
+            single.iterations,
+            single.n_used,
+            single.frozen,
+        )
+        np.testing.assert_allclose(got.pose, single.pose, atol=1e-9)
+    expected = {"": "max_iterations", "cycle_returns": "cycle", "freeze_on_cycle": "converged"}
+    assert many[0].reason == expected[next(iter(watch), "")]
+
+
 # ----------------------------------------------------------------- pose bound
 
 
@@ -581,6 +651,13 @@ def test_pose_bound_stops_an_alignment_that_leaves_it():
     assert (out.reason, out.iterations, out.converged) == ("out_of_bound", 1, False)
     d = out.pose - prior
     assert np.linalg.norm(d) > 0.05
+    # side by side (more alignments than run one at a time): the same per bound
+    mixed = [tight, wide, None, tight, wide]
+    many = align_many(points, [model] * 5, prior, cfg, *limits, bounds=mixed)
+    for got, bound in zip(many, mixed, strict=True):
+        alone = {id(tight): out, id(wide): inside, id(None): free}[id(bound)]
+        assert (got.reason, got.iterations) == (alone.reason, alone.iterations)
+        np.testing.assert_allclose(got.pose, alone.pose, atol=1e-9)
     with pytest.raises(ValueError, match="bounds"):
         align_many(points, [model, model], prior, cfg, *limits, bounds=[wide])
 
