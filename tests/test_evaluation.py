@@ -22,6 +22,7 @@ from vslam_gym.evaluation import (
     heading_rmse,
     landmark_majority_ids,
     majority_id,
+    mean_metrics,
     mean_nees_interval,
     nees_summary,
     odometry_covariances,
@@ -29,6 +30,7 @@ from vslam_gym.evaluation import (
     pose_nees,
     position_ate_rmse,
     run_episode,
+    sem_metrics,
     write_tum,
     yaw_quaternion,
 )
@@ -400,6 +402,32 @@ def test_evaluate_end_to_end_is_deterministic(episode, tmp_path, capsys):
     assert again.keys() == seed.keys()
     for key in again.keys() - set(TIMING_KEYS):
         assert _same(again[key], seed[key]), key
+
+
+def test_sem_metrics_and_the_table_row():
+    per_seed = [
+        {"seed": 0, "world": "w", "preset": "default", "ate_rmse_m": 0.1, "route_done": True},
+        {"seed": 1, "world": "w", "preset": "default", "ate_rmse_m": 0.3, "route_done": False},
+        {"seed": 2, "world": "w", "preset": "default", "ate_rmse_m": math.nan, "route_done": True},
+    ]
+    sem = sem_metrics(per_seed)
+    # over the finite values 0.1 and 0.3: sd 0.1414, / sqrt(2)
+    assert sem["ate_rmse_m"] == pytest.approx(0.1)
+    assert sem["route_done"] == pytest.approx(np.std([1, 0, 1], ddof=1) / math.sqrt(3))
+    assert "world" not in sem and "seed" not in sem
+    assert math.isnan(sem_metrics(per_seed[:1])["ate_rmse_m"])
+    with pytest.raises(ValueError, match="no seed"):
+        sem_metrics([])
+    metrics = {
+        "world": "w",
+        "preset": "default",
+        "per_seed": per_seed[:2],
+        "mean": mean_metrics(per_seed[:2]),
+        "sem": sem_metrics(per_seed[:2]),
+    }
+    last = format_table(metrics).splitlines()
+    assert last[-2].split()[0] == "mean" and last[-1].split()[:2] == ["+-", "sem"]
+    assert "0.100" in last[-1] and "0.200" in last[-2]
 
 
 def test_evaluate_applies_overrides_over_the_preset(tmp_path):

@@ -76,6 +76,7 @@ __all__ = [
     "position_ate_rmse",
     "progress_bar",
     "run_episode",
+    "sem_metrics",
     "sensor_from_lidar",
     "slam_config",
     "timing_summary",
@@ -677,6 +678,28 @@ def mean_metrics(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def sem_metrics(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """Standard error of :func:`mean_metrics` over seeds, per numeric metric.
+
+    ``std(ddof=1) / sqrt(n)`` over the seeds with a finite value (NaN with fewer than
+    two). The per-seed spread includes the filter's sensitivity to round-off, which
+    pairing seeds between two configurations does not remove: compare two
+    configurations' means against their standard errors, unpaired.
+    """
+    if not per_seed:
+        raise ValueError("no seed to average")
+    out: dict[str, float] = {}
+    for key, value in per_seed[0].items():
+        if key == "seed" or not isinstance(value, bool | int | float | np.floating | np.integer):
+            continue
+        values = np.array([float(m[key]) for m in per_seed])
+        finite = values[np.isfinite(values)]
+        out[key] = (
+            float(finite.std(ddof=1) / math.sqrt(finite.size)) if finite.size > 1 else math.nan
+        )
+    return out
+
+
 # ---------------------------------------------------------------------------- TUM export
 
 
@@ -944,7 +967,8 @@ def evaluate(
     Returns:
         The content of ``out_dir/metrics.json``: ``world``, ``preset``, ``overrides``,
         ``seeds``, ``machine``, ``per_seed`` (one :func:`episode_metrics` dict per seed)
-        and ``mean`` (:func:`mean_metrics`). NaN metrics are written as ``null``.
+        ``mean`` (:func:`mean_metrics`) and ``sem`` (its standard error over the seeds,
+        :func:`sem_metrics`). NaN metrics are written as ``null``.
     """
     seeds = [int(s) for s in seeds]
     if not seeds:
@@ -977,6 +1001,7 @@ def evaluate(
         "machine": machine_description(),
         "per_seed": per_seed,
         "mean": mean_metrics(per_seed),
+        "sem": sem_metrics(per_seed),
     }
     result = json_safe(result)
     (out / "metrics.json").write_text(json.dumps(result, indent=2) + "\n")
@@ -1040,6 +1065,9 @@ def format_table(metrics: Mapping[str, Any]) -> str:
     ]
     mean = metrics["mean"]
     rows.append(["mean"] + [cell(mean.get(key), fmt) for _, key, fmt in _TABLE_COLUMNS])
+    sem = metrics.get("sem") if len(metrics["per_seed"]) > 1 else None
+    if sem:
+        rows.append(["+- sem"] + [cell(sem.get(key), fmt) for _, key, fmt in _TABLE_COLUMNS])
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
 
     def line(cells: Sequence[str]) -> str:
@@ -1049,7 +1077,9 @@ def format_table(metrics: Mapping[str, Any]) -> str:
     if metrics.get("overrides"):
         title += f" / --set {json.dumps(metrics['overrides'], separators=(',', ':'))}"
     rule = "-" * len(line(header))
-    return "\n".join([title, line(header), rule, *map(line, rows[:-1]), rule, line(rows[-1])])
+    n_summary = 2 if sem else 1
+    body, summary = rows[:-n_summary], rows[-n_summary:]
+    return "\n".join([title, line(header), rule, *map(line, body), rule, *map(line, summary)])
 
 
 # ---------------------------------------------------------------------------- command line
