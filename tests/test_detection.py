@@ -497,6 +497,41 @@ def test_detect_many_equals_one_model_at_a_time(trials, linearization):
     )
 
 
+@pytest.mark.parametrize("linearization", ["jacobian", "ut"])
+def test_detect_many_with_a_set_per_model_equals_one_set_at_a_time(trials, linearization):
+    """Per-model beam spans (the filter tests all sets of a scan in one call): each
+    result is that of the model's own set alone, bit for bit."""
+    config = ModelConfig(linearization=linearization)
+    rng = np.random.default_rng(8)
+    models = _varied_models(trials)
+    _, pose0, scans = trials[0]
+    scan = scans["W"]
+    first, last = segment(scan)
+    # sets of different lengths: the whole segment, its halves, a few beams
+    mid = (first + last) // 2
+    spans = [(first, last), (first, mid), (mid + 1, last), (first + 2, first + 6)]
+    spans = [spans[k % len(spans)] for k in range(len(models))]
+    poses = pose0 + rng.normal(0.0, [0.05, 0.05, 0.02], (len(models), 3))
+    firsts, lasts = [f for f, _ in spans], [la for _, la in spans]
+    many = detect_many(models, scan, firsts, lasts, poses, SENSOR, config)
+    for model, (f, la), pose, got in zip(models, spans, poses, many, strict=True):
+        single = detect(model, scan, f, la, pose, SENSOR, config)
+        assert got.association.n == la - f + 1
+        assert (got.accepted, got.mean_d2, got.var_d2, got.loglik) == (
+            single.accepted,
+            single.mean_d2,
+            single.var_d2,
+            single.loglik,
+        )
+        for name in ("line", "gated", "mu_err", "var_err", "loglik", "u", "d2"):
+            np.testing.assert_array_equal(
+                getattr(got.association, name), getattr(single.association, name)
+            )
+    assert any(d.accepted for d in many) and not all(d.accepted for d in many)
+    with pytest.raises(ValueError, match="first <= last"):
+        detect_many(models[:2], scan, [first, last], [last, first], poses[:2], SENSOR, config)
+
+
 def test_beam_line_correspondences_checks_its_poses(trials):
     model, pose, scans = trials[0]
     scan = scans["W"]

@@ -49,6 +49,7 @@ pass over ``(models, n, n_lines)`` arrays, with the same result per model as
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -194,6 +195,21 @@ def _check_segment(scan: Scan, first: object, last: object) -> tuple[int, int]:
             f"segment {first}..{last} includes no-return (max-range) beams {bad[:5].tolist()}"
         )
     return first, last
+
+
+def _check_spans(
+    scan: Scan, first: object, last: object, n_models: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-model ``(first, last)`` beam indices: one pair for all, or one per model."""
+    if np.ndim(first) == 0 and np.ndim(last) == 0:
+        f, l_ = _check_segment(scan, first, last)
+        return np.full(n_models, f), np.full(n_models, l_)
+    firsts = np.broadcast_to(np.asarray(first), (n_models,))
+    lasts = np.broadcast_to(np.asarray(last), (n_models,))
+    spans = [
+        _check_segment(scan, f, l_) for f, l_ in zip(firsts.tolist(), lasts.tolist(), strict=True)
+    ]
+    return np.array([f for f, _ in spans]), np.array([l_ for _, l_ in spans])
 
 
 def _check_model(model: LandmarkModel) -> None:
@@ -617,8 +633,8 @@ def _range_errors_many(
 def beam_line_correspondences(
     models: list[LandmarkModel],
     scan: Scan,
-    first: int,
-    last: int,
+    first: int | Sequence[int],
+    last: int | Sequence[int],
     poses: np.ndarray,
     sensor: SensorConfig,
     config: ModelConfig,
@@ -638,6 +654,9 @@ def beam_line_correspondences(
 
     Args:
         models: the landmark models (world frame), at least one.
+        first: the set's first beam, or per model the first beam of its set (then the
+            sets are padded to the longest and each result has its own set's length) ...
+        last: ... and its last beam (inclusive).
         poses: ``(len(models), 3)`` lidar poses ``[x, y, theta]`` (world frame).
         parts: optional :func:`model_parts` of each model (computed here when omitted);
             the caller must keep them in step with the models.
@@ -653,14 +672,24 @@ def beam_line_correspondences(
         raise ValueError("models must hold at least one LandmarkModel")
     for m in models:
         _check_model(m)
-    first, last = _check_segment(scan, first, last)
-    poses = _check_poses(poses, len(models))
+    n_models = len(models)
+    firsts, lasts = _check_spans(scan, first, last, n_models)
+    poses = _check_poses(poses, n_models)
     lam = _check_lam(lam)
 
-    ranges = scan.ranges[first : last + 1]
-    bearings = scan.bearings[first : last + 1]
-    n = ranges.size
-    n_models = len(models)
+    # Beams as (models, n) arrays: one row for all models when they share the set,
+    # else each model's set padded (with its last beam) to the longest; padded beams
+    # are never candidates and get no range error.
+    counts = lasts - firsts + 1
+    n = int(counts.max())
+    valid = None
+    if np.all(firsts == firsts[0]) and np.all(lasts == lasts[0]):
+        ranges = scan.ranges[firsts[0] : lasts[0] + 1][None, :]
+        bearings = scan.bearings[firsts[0] : lasts[0] + 1][None, :]
+    else:
+        idx = firsts[:, None] + np.minimum(np.arange(n)[None, :], counts[:, None] - 1)
+        ranges, bearings = scan.ranges[idx], scan.bearings[idx]
+        valid = np.arange(n)[None, :] < counts[:, None]
     if parts is None:
         parts = [model_parts(m) for m in models]
     pm = _PaddedModels(models, parts)
@@ -690,9 +719,9 @@ def beam_line_correspondences(
     usable = front & ~(near_a | near_b) & pm.valid  # front-facing, not radial
 
     # 2. Gate, per (model, beam, line).
-    delta_a = np.asarray(wrap_angle(phi_a[:, None, :] - bearings[None, :, None]))
-    delta_b = np.asarray(wrap_angle(phi_b[:, None, :] - bearings[None, :, None]))
-    angle = poses[:, 2, None] + bearings[None, :]
+    delta_a = np.asarray(wrap_angle(phi_a[:, None, :] - bearings[:, :, None]))
+    delta_b = np.asarray(wrap_angle(phi_b[:, None, :] - bearings[:, :, None]))
+    angle = poses[:, 2, None] + bearings
     dv = va - vbm
     length = np.hypot(dv[..., 0], dv[..., 1])
     sin_beam_line = (
@@ -707,6 +736,8 @@ def beam_line_correspondences(
         & (delta_a - delta_b < np.pi)
         & not_parallel
     )
+    if valid is not None:
+        candidate &= valid[:, :, None]
     gated = np.any(candidate, axis=2)
 
     # Beams without candidates: one fallback pair each (scored only if not parallel).
@@ -715,7 +746,7 @@ def beam_line_correspondences(
     # seen from behind) the line with the nearest end in bearing, among the usable
     # lines if there are any (thesis T:2363-2366, notes 3.2).
     evaluate = candidate.copy()
-    fb_c, fb_beam = np.nonzero(~gated)
+    fb_c, fb_beam = np.nonzero(~gated if valid is None else ~gated & valid)
     fb_line = np.zeros(0, dtype=int)
     if fb_c.size:
         da, db = delta_a[fb_c, fb_beam], delta_b[fb_c, fb_beam]  # (m, L)
@@ -738,9 +769,10 @@ def beam_line_correspondences(
     var_err = np.full((n_models, n, n_lines), np.nan)
     loglik = np.full((n_models, n, n_lines), -np.inf)
     if beam_idx.size:
+        row = pair_c if valid is not None else np.zeros_like(pair_c)
         mu_p, var_p = _range_errors_many(
-            ranges[beam_idx],
-            bearings[beam_idx],
+            ranges[row, beam_idx],
+            bearings[row, beam_idx],
             sensor.Q,
             poses,
             pair_c,
@@ -761,28 +793,29 @@ def beam_line_correspondences(
     chosen_var = var_err[cm, rows, line]
     chosen_ll = loglik[cm, rows, line]
     u = pm.u[cm, line]
+    d2 = np.full((n_models, n), np.nan)
     if distances:
-        d2 = _generalized_mahalanobis_sq(
-            chosen_mu.ravel(),
-            chosen_var.ravel(),
-            u.ravel(),
+        keep = slice(None) if valid is None else valid.ravel()
+        d2.ravel()[keep] = _generalized_mahalanobis_sq(
+            chosen_mu.ravel()[keep],
+            chosen_var.ravel()[keep],
+            u.ravel()[keep],
             lam,
             config.gm_mode_bracket_sigma,
-            np.repeat(np.arange(n_models), n),  # each model's mode search stops on its own
-        ).reshape(n_models, n)
-    else:
-        d2 = np.full((n_models, n), np.nan)
+            # each model's mode search stops on its own
+            np.repeat(np.arange(n_models), n)[keep],
+        )
     return [
         BeamAssociation(
-            line=line[c],
-            gated=gated[c],
-            mu_err=chosen_mu[c],
-            var_err=chosen_var[c],
-            loglik=chosen_ll[c],
-            u=u[c],
-            d2=d2[c],
+            line=line[c, :k],
+            gated=gated[c, :k],
+            mu_err=chosen_mu[c, :k],
+            var_err=chosen_var[c, :k],
+            loglik=chosen_ll[c, :k],
+            u=u[c, :k],
+            d2=d2[c, :k],
         )
-        for c in range(n_models)
+        for c, k in enumerate(counts.tolist())
     ]
 
 
@@ -833,11 +866,28 @@ def detect(
     ]
 
 
+def _trimmed_statistics(d2: np.ndarray, config: ModelConfig) -> tuple[list, list]:
+    """Mean and population variance of each row of ``d2`` ``(models, n)``, trimmed.
+
+    The ``floor(detection_trim_fraction * n)`` largest values of every row are left out
+    (``inf`` for a row with a non-finite value): the statistics of
+    :func:`~vslam_gym.slam.likelihood.detection_statistics` of ``trimmed(d2)`` per row.
+    """
+    k = int(np.floor(config.detection_trim_fraction * d2.shape[1]))
+    if k > 0:
+        d2 = np.partition(d2, d2.shape[1] - k - 1, axis=1)[:, : d2.shape[1] - k]
+    finite = np.all(np.isfinite(d2), axis=1)
+    with np.errstate(invalid="ignore"):
+        mean_d2 = np.where(finite, np.mean(d2, axis=1), np.inf).tolist()
+        var_d2 = np.where(finite, np.var(d2, axis=1), np.inf).tolist()
+    return mean_d2, var_d2
+
+
 def detect_many(
     models: list[LandmarkModel],
     scan: Scan,
-    first: int,
-    last: int,
+    first: int | Sequence[int],
+    last: int | Sequence[int],
     poses: np.ndarray,
     sensor: SensorConfig,
     config: ModelConfig,
@@ -846,13 +896,16 @@ def detect_many(
     *,
     parts: list[ModelParts] | None = None,
 ) -> list[Detection]:
-    """:func:`detect` of one set of beams against several models, model ``c`` at ``poses[c]``.
+    """:func:`detect` of sets of beams against several models, model ``c`` at ``poses[c]``.
 
     One :func:`beam_line_correspondences` call for all models; each result equals that
-    of :func:`detect` for its model and pose.
+    of :func:`detect` for its model, set and pose (up to round-off in the mean and
+    variance when the sets differ in length).
 
     Args:
         models: the landmark models (world frame), at least one.
+        first: the set's first beam, or per model the first beam of its set ...
+        last: ... and its last beam (inclusive).
         poses: ``(len(models), 3)`` lidar poses ``[x, y, theta]`` (world frame).
         parts: optional :func:`model_parts` of each model.
         (others): as :func:`detect`.
@@ -871,16 +924,12 @@ def detect_many(
     assocs = beam_line_correspondences(
         models, scan, first, last, poses, sensor, config, lin, lam, parts=parts
     )
-    d2 = np.stack([a.d2 for a in assocs])  # (models, n)
-    # detection_statistics of trimmed(d2), per model: the same k largest values are left
-    # out of every row (same n).
-    k = int(np.floor(config.detection_trim_fraction * d2.shape[1]))
-    if k > 0:
-        d2 = np.partition(d2, d2.shape[1] - k - 1, axis=1)[:, : d2.shape[1] - k]
-    finite = np.all(np.isfinite(d2), axis=1)
-    with np.errstate(invalid="ignore"):
-        mean_d2 = np.where(finite, np.mean(d2, axis=1), np.inf).tolist()
-        var_d2 = np.where(finite, np.var(d2, axis=1), np.inf).tolist()
+    sizes = {a.n for a in assocs}
+    if len(sizes) == 1:
+        mean_d2, var_d2 = _trimmed_statistics(np.stack([a.d2 for a in assocs]), config)
+    else:  # sets of different lengths: model by model
+        stats = [_trimmed_statistics(a.d2[None, :], config) for a in assocs]
+        mean_d2, var_d2 = [m[0] for m, _ in stats], [v[0] for _, v in stats]
     out = []
     for assoc, mean, var in zip(assocs, mean_d2, var_d2, strict=True):
         # The rule of likelihood.detection_accepts, on the statistics already computed.

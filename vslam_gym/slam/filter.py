@@ -430,10 +430,38 @@ class _SetWork:
 
 @dataclass(frozen=True)
 class _Overlap:
-    """The candidate landmark a set lies closest to (``_associate``)."""
+    """The candidate landmark a set lies closest to (``_choose``)."""
 
     landmark: int
     distance: float  # median point-to-object-line distance [m]
+
+
+@dataclass(frozen=True)
+class _PoseGate:
+    """What one scan's associations judge ICP poses by.
+
+    The pose covariance's Cholesky factor and Gaussian log normaliser, and the ICP
+    gate's covariance and its factor (None without a gate).
+    """
+
+    chol: np.ndarray
+    log_norm: float
+    gate_cov: np.ndarray | None
+    chol_gate: np.ndarray | None
+
+
+@dataclass
+class _Gated:
+    """A set's candidates after the ICP gate.
+
+    ``tried``: per candidate its record (None while untested); ``tested``: ``(candidate,
+    pose, reason)`` to test for detection; ``m2s``: their squared Mahalanobis distances
+    from the predicted pose.
+    """
+
+    tried: list
+    tested: list
+    m2s: dict
 
 
 @dataclass
@@ -729,49 +757,42 @@ class VertexSLAM:
             near = np.ones(len(lms), dtype=bool)
         return _SetWork(first, last, pts, lms, geometry, np.flatnonzero(near))
 
-    def _associate(
-        self,
-        scan: Scan,
-        work: _SetWork,
-        results: list,
-        lam: float,
-        known: dict[int, Any] | None = None,
-    ) -> tuple[_Association | None, tuple, _Overlap | None]:
-        """Maximum-likelihood landmark for a set (4.3.4-4.3.18) and the candidates tried.
-
-        ``results``: the ICP alignment of the set to each of ``work.aligned``. The
-        accepted candidates are tested together
-        (:func:`~vslam_gym.slam.detection.detect_many`); ``known`` holds detections
-        already computed at the result's pose, by candidate. The third value is the
-        candidate whose object lines the set lies closest to (:meth:`_overlap`; None
-        when ``creation_overlap_distance`` is off or no candidate has object lines).
-        """
-        lms, pose = work.landmarks, self._mu[:3]
-        tried: list[tuple | None] = [None] * len(lms)
-        for c in np.setdiff1d(np.arange(len(lms)), work.aligned):
-            tried[c] = (lms[c].id, "far", np.nan, np.nan, False)
+    def _pose_gate(self) -> _PoseGate:
+        """What the plausibility of every ICP pose of a scan is judged by (current state)."""
         cfg = self.config.filter
-        cov_x = self._sigma[:3, :3]
-        chol = np.linalg.cholesky(cov_x)
+        chol = np.linalg.cholesky(self._sigma[:3, :3])
         log_norm = -0.5 * (3 * np.log(2 * np.pi)) - np.log(np.diag(chol)).sum()
-        gate = np.isfinite(cfg.icp_max_pose_mahalanobis)
-        if gate:
+        gate_cov = chol_gate = None
+        if np.isfinite(cfg.icp_max_pose_mahalanobis):
             gate_cov = self._gate_covariance()
             # without a floor the gate covariance is the pose covariance: reuse its factor
             chol_gate = np.linalg.cholesky(gate_cov) if any(cfg.icp_gate_sigma_floor) else chol
-        tested: list[tuple[int, np.ndarray, str]] = []  # (candidate, pose to test, reason)
-        m2s = {}
+        return _PoseGate(chol, log_norm, gate_cov, chol_gate)
+
+    def _gate(self, work: _SetWork, results: list, gate: _PoseGate) -> _Gated:
+        """Which aligned candidates of a set are tested for detection, and at which pose.
+
+        ``results``: the ICP alignment of the set to each of ``work.aligned``. A result
+        beyond ``icp_max_pose_mahalanobis`` of the predicted pose is retried
+        (``icp_retry_correspondence_distance``), tested at the predicted pose
+        (``icp_gate_fallback``) or not tested.
+        """
+        lms, pose = work.landmarks, self._mu[:3]
+        gated_out = _Gated([None] * len(lms), [], {})
+        for c in np.setdiff1d(np.arange(len(lms)), work.aligned):
+            gated_out.tried[c] = (lms[c].id, "far", np.nan, np.nan, False)
+        cfg = self.config.filter
         for c, res in zip(work.aligned, results, strict=True):
             if not np.all(np.isfinite(res.pose)):
                 continue
             d = res.pose - pose
             d[2] = wrap_angle(d[2])
-            white = np.linalg.solve(chol, d)
+            white = np.linalg.solve(gate.chol, d)
             m2 = float(white @ white)
             test_pose, reason = res.pose, res.reason
-            gated = gate and self._gate_distance(lms[c], d, gate_cov, chol_gate) > (
-                cfg.icp_max_pose_mahalanobis
-            )
+            gated = gate.gate_cov is not None and self._gate_distance(
+                lms[c], d, gate.gate_cov, gate.chol_gate
+            ) > (cfg.icp_max_pose_mahalanobis)
             if gated and cfg.icp_retry_correspondence_distance > 0.0:
                 retry = self._robust_alignment(work, c)
                 d_retry = retry.pose - pose
@@ -780,67 +801,90 @@ class VertexSLAM:
                     retry.converged
                     and retry.n_used >= cfg.icp_retry_min_fraction * work.points.shape[0]
                     and np.all(np.isfinite(d_retry))
-                    and self._gate_distance(lms[c], d_retry, gate_cov, chol_gate)
+                    and self._gate_distance(lms[c], d_retry, gate.gate_cov, gate.chol_gate)
                     <= cfg.icp_max_pose_mahalanobis
                 ):
                     gated, d, test_pose, reason = False, d_retry, retry.pose, "retried"
-                    white = np.linalg.solve(chol, d)
+                    white = np.linalg.solve(gate.chol, d)
                     m2 = float(white @ white)
             if gated:
                 if not cfg.icp_gate_fallback:
-                    tried[c] = (lms[c].id, "gated", np.nan, np.nan, False)
+                    gated_out.tried[c] = (lms[c].id, "gated", np.nan, np.nan, False)
                     continue
                 test_pose, reason, m2 = pose, "gated", 0.0
-            tested.append((c, test_pose, reason))
-            m2s[c] = m2
+            gated_out.tested.append((c, test_pose, reason))
+            gated_out.m2s[c] = m2
+        return gated_out
+
+    def _detections(
+        self, scan: Scan, requests: list[tuple[_SetWork, int, np.ndarray]], lam: float
+    ) -> list[Any]:
+        """The detection test of every (set, candidate, pose) request of a scan.
+
+        One :func:`~vslam_gym.slam.detection.detect_many` call, each set its own beams.
+        """
+        if not requests:
+            return []
+        return detect_many(
+            [self._detection_model(w.landmarks[c]) for w, c, _ in requests],
+            scan,
+            [w.first for w, _, _ in requests],
+            [w.last for w, _, _ in requests],
+            np.array([p for _, _, p in requests]),
+            self.sensor,
+            self.config.model,
+            self._lin,
+            lam,
+            parts=[self._parts(w.landmarks[c]) for w, c, _ in requests],
+        )
+
+    def _choose(
+        self,
+        scan: Scan,
+        work: _SetWork,
+        gated: _Gated,
+        detections: dict[int, Any],
+        log_norm: float,
+    ) -> tuple[_Association | None, tuple, _Overlap | None]:
+        """Maximum-likelihood landmark for a set (4.3.4-4.3.18) and the candidates tried.
+
+        ``detections``: the detection test of every tested candidate at its pose, by
+        candidate. The third value is the candidate whose object lines the set lies
+        closest to (:meth:`_overlap`; None when ``creation_overlap_distance`` is off or
+        no candidate has object lines).
+        """
+        lms, tried = work.landmarks, gated.tried
         best, best_score = None, -np.inf
-        if tested:
-            known = known or {}
-            new = [t for t in tested if t[0] not in known]
-            if new:
-                fresh = detect_many(
-                    [self._detection_model(lms[c]) for c, _, _ in new],
-                    scan,
+        for c, test_pose, reason in gated.tested:
+            det = detections[c]
+            lm, model = lms[c], self._model(lms[c])
+            accepted = det.accepted and self._enough_object_beams(det)
+            tried[c] = (lm.id, reason, det.mean_d2, det.var_d2, accepted)
+            if not accepted:
+                continue
+            score = det.loglik + log_norm - 0.5 * gated.m2s[c]
+            if score > best_score:
+                line = det.association.line
+                obj = model.u[line] <= self.config.model.unknown_threshold
+                counts = np.bincount(line[obj], minlength=model.n_lines)
+                enough = int(np.sum(counts >= self.config.filter.min_beams_per_object_line))
+                best_score = score
+                best = _Association(
                     work.first,
                     work.last,
-                    np.array([p for _, p, _ in new]),
-                    self.sensor,
-                    self.config.model,
-                    self._lin,
-                    lam,
-                    parts=[self._parts(lms[c]) for c, _, _ in new],
+                    lm,
+                    test_pose.copy(),
+                    (),
+                    enough >= self.config.filter.min_object_lines,
+                    detection=det,
                 )
-                known = {**known, **{t[0]: det for t, det in zip(new, fresh, strict=True)}}
-            dets = [known[c] for c, _, _ in tested]
-            for (c, test_pose, reason), det in zip(tested, dets, strict=True):
-                lm, model = lms[c], self._model(lms[c])
-                accepted = det.accepted and self._enough_object_beams(det)
-                tried[c] = (lm.id, reason, det.mean_d2, det.var_d2, accepted)
-                if not accepted:
-                    continue
-                score = det.loglik + log_norm - 0.5 * m2s[c]
-                if score > best_score:
-                    line = det.association.line
-                    obj = model.u[line] <= self.config.model.unknown_threshold
-                    counts = np.bincount(line[obj], minlength=model.n_lines)
-                    enough = int(np.sum(counts >= self.config.filter.min_beams_per_object_line))
-                    best_score = score
-                    best = _Association(
-                        work.first,
-                        work.last,
-                        lm,
-                        test_pose.copy(),
-                        (),
-                        enough >= self.config.filter.min_object_lines,
-                        detection=det,
-                    )
         done = tuple(t for t in tried if t is not None)
         if best is not None:
             best.candidates = done
             return best, done, None
         overlap = None
-        if cfg.creation_overlap_distance > 0.0:
-            poses = {c: p for c, p, reason in tested if reason != "gated"}
+        if self.config.filter.creation_overlap_distance > 0.0:
+            poses = {c: p for c, p, reason in gated.tested if reason != "gated"}
             overlap = self._overlap(scan, work, poses)
         return best, done, overlap
 
@@ -967,15 +1011,29 @@ class VertexSLAM:
             works.append((first, last, self._candidates(scan, first, last, refs, radii)))
         pairs = [(w, c) for _, _, w in works if w is not None for c in w.aligned]
         results, known = self._alignments(scan, works, pairs, lam)
+        # The ICP gate of every set, then one detection call for all sets' candidates
+        # (those not tested already at the predicted pose), then each set's choice.
+        pose_gate = self._pose_gate() if any(w is not None for _, _, w in works) else None
+        gates: list[_Gated | None] = []
+        requests: list[tuple[_SetWork, int, np.ndarray]] = []
         at = 0
-        for first, last, work in works:
+        for _, _, work in works:
+            if work is None:
+                gates.append(None)
+                continue
+            gates.append(self._gate(work, results[at : at + work.aligned.size], pose_gate))
+            at += work.aligned.size
+            done = known.get(id(work), {})
+            requests += [(work, c, p) for c, p, _ in gates[-1].tested if c not in done]
+        for (work, c, _), det in zip(requests, self._detections(scan, requests, lam), strict=True):
+            known.setdefault(id(work), {})[c] = det
+        for (first, last, work), gate in zip(works, gates, strict=True):
             if work is None:
                 unmatched.append((first, last, (), None))
                 continue
-            assoc, tried, overlap = self._associate(
-                scan, work, results[at : at + work.aligned.size], lam, known.get(id(work))
+            assoc, tried, overlap = self._choose(
+                scan, work, gate, known.get(id(work), {}), pose_gate.log_norm
             )
-            at += work.aligned.size
             if assoc is None:
                 unmatched.append((first, last, tried, overlap))
             else:
