@@ -314,28 +314,48 @@ class _Lines:
         self, px: float, py: float, theta: float, max_range: float | None, half_fov: float | None
     ) -> np.ndarray:
         """:meth:`visible` from a pose given as floats ``px, py`` [m], ``theta`` [rad]."""
-        pax = self.ax - px
-        pay = self.ay - py
-        pbx = pax + self.abx
-        pby = pay + self.aby
-        # Front-facing: cross(v_a - p, v_b - p) < 0 (the position is on the free side).
-        mask = pax * pby < pay * pbx
-        if not np.count_nonzero(mask):  # nothing faces the lidar: the other tests cannot add a line
-            return mask
-        if max_range is not None:
-            s = _unit_clip(-(pax * self.abx + pay * self.aby) * self.inv_length2)
-            cx = pax + s * self.abx
-            cy = pay + s * self.aby
-            mask &= cx * cx + cy * cy <= max_range * max_range
-        if half_fov is not None and half_fov < np.pi:
-            # A front-facing line spans the bearings from phi_b up to phi_a (< pi apart);
-            # two arcs of the circle overlap iff the start of one lies inside the other.
-            phi_b = np.arctan2(pby, pbx) - theta
-            span = np.mod(np.arctan2(pay, pax) - theta - phi_b, TWO_PI)
-            start_in_fov = np.mod(phi_b + half_fov, TWO_PI) <= 2.0 * half_fov
-            fov_start_in_line = np.mod(-half_fov - phi_b, TWO_PI) <= span
-            mask &= start_in_fov | fov_start_in_line
+        return _visible(
+            self.ax,
+            self.ay,
+            self.abx,
+            self.aby,
+            self.inv_length2,
+            px,
+            py,
+            theta,
+            max_range,
+            half_fov,
+        )
+
+
+def _visible(ax, ay, abx, aby, inv_length2, px, py, theta, max_range, half_fov) -> np.ndarray:
+    """Visibility of lines ``a -> a + ab`` (arrays) from poses ``px, py, theta``.
+
+    The pose may be floats (lines ``(L,)``) or ``(A, 1)`` columns (lines ``(A, L)``);
+    see :func:`visible_lines`.
+    """
+    pax = ax - px
+    pay = ay - py
+    pbx = pax + abx
+    pby = pay + aby
+    # Front-facing: cross(v_a - p, v_b - p) < 0 (the position is on the free side).
+    mask = pax * pby < pay * pbx
+    if not np.count_nonzero(mask):  # nothing faces the lidar: the other tests cannot add a line
         return mask
+    if max_range is not None:
+        s = _unit_clip(-(pax * abx + pay * aby) * inv_length2)
+        cx = pax + s * abx
+        cy = pay + s * aby
+        mask &= cx * cx + cy * cy <= max_range * max_range
+    if half_fov is not None and half_fov < np.pi:
+        # A front-facing line spans the bearings from phi_b up to phi_a (< pi apart);
+        # two arcs of the circle overlap iff the start of one lies inside the other.
+        phi_b = np.arctan2(pby, pbx) - theta
+        span = np.mod(np.arctan2(pay, pax) - theta - phi_b, TWO_PI)
+        start_in_fov = np.mod(phi_b + half_fov, TWO_PI) <= 2.0 * half_fov
+        fov_start_in_line = np.mod(-half_fov - phi_b, TWO_PI) <= span
+        mask &= start_in_fov | fov_start_in_line
+    return mask
 
 
 def visible_lines(
@@ -874,24 +894,7 @@ class _Batch:
 
     def visible(self, px, py, theta, max_range, half_fov) -> np.ndarray:
         """:meth:`_Lines.visible_from` of every alignment at its pose ``(A,)``: ``(A, L)``."""
-        ax, ay, abx, aby, inv_length2 = self.pair
-        pax = ax - px[:, None]
-        pay = ay - py[:, None]
-        pbx = pax + abx
-        pby = pay + aby
-        mask = pax * pby < pay * pbx
-        if max_range is not None:
-            s = _unit_clip(-(pax * abx + pay * aby) * inv_length2)
-            cx = pax + s * abx
-            cy = pay + s * aby
-            mask &= cx * cx + cy * cy <= max_range * max_range
-        if half_fov is not None and half_fov < np.pi:
-            phi_b = np.arctan2(pby, pbx) - theta[:, None]
-            span = np.mod(np.arctan2(pay, pax) - theta[:, None] - phi_b, TWO_PI)
-            start_in_fov = np.mod(phi_b + half_fov, TWO_PI) <= 2.0 * half_fov
-            fov_start_in_line = np.mod(-half_fov - phi_b, TWO_PI) <= span
-            mask &= start_in_fov | fov_start_in_line
-        return mask
+        return _visible(*self.pair, px[:, None], py[:, None], theta[:, None], max_range, half_fov)
 
     def nearest(self, vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every point's nearest visible segment (R-22): index ``(T,)`` and squared distance."""
