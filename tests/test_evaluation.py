@@ -12,6 +12,7 @@ from vslam_gym.evaluation import (
     SeedsError,
     add_evaluate_parser,
     association_precision,
+    check_range_perturbation,
     chi2_interval,
     cmd_evaluate,
     duplicate_fraction,
@@ -428,6 +429,29 @@ def test_sem_metrics_and_the_table_row():
     last = format_table(metrics).splitlines()
     assert last[-2].split()[0] == "mean" and last[-1].split()[:2] == ["+-", "sem"]
     assert "0.100" in last[-1] and "0.200" in last[-2]
+
+
+def test_range_perturbation_is_a_round_off_probe(tmp_path):
+    """1 + 1e-15 on the ranges: the simulation is the same, the SLAM moves by round-off
+    only (at first), and the figures say which perturbation they were run with."""
+    plain = run_episode("small", 0, max_steps=20)
+    probed = run_episode("small", 0, max_steps=20, range_perturbation=1e-15)
+    np.testing.assert_array_equal(probed.true_poses, plain.true_poses)
+    np.testing.assert_array_equal(probed.odometry_poses, plain.odometry_poses)
+    difference = np.abs(probed.slam_poses - plain.slam_poses).max()
+    assert 0.0 < difference < 1e-9
+    metrics = evaluate(
+        "small", [0], "default", tmp_path, progress=False, max_steps=3, print_table=False,
+        range_perturbation=1e-15,
+    )  # fmt: skip
+    assert metrics["range_perturbation"] == 1e-15
+    assert "--range-perturbation 1e-15" in format_table(metrics).splitlines()[0]
+    assert check_range_perturbation(0.0) == 0.0
+    for bad in (0.1, -1e-15, math.nan, "1e-15"):
+        with pytest.raises(ValueError, match="range_perturbation"):
+            check_range_perturbation(bad)
+    with pytest.raises(ValueError, match="range_perturbation"):
+        run_episode("small", 0, max_steps=1, range_perturbation=1e-3)
 
 
 def test_evaluate_applies_overrides_over_the_preset(tmp_path):

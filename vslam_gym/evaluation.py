@@ -57,6 +57,7 @@ __all__ = [
     "SeedsError",
     "add_evaluate_parser",
     "association_precision",
+    "check_range_perturbation",
     "chi2_interval",
     "cmd_evaluate",
     "duplicate_fraction",
@@ -213,6 +214,20 @@ def slam_config(preset: str | SlamConfig, odometry_alphas: Sequence[float]) -> S
     )
 
 
+MAX_RANGE_PERTURBATION = 1e-9
+"""Largest ``range_perturbation`` of :func:`run_episode`: a round-off probe, not noise."""
+
+
+def check_range_perturbation(value: float) -> float:
+    """``value`` if it is a valid ``range_perturbation``, else ValueError naming it."""
+    if not (isinstance(value, int | float) and 0.0 <= value <= MAX_RANGE_PERTURBATION):
+        raise ValueError(
+            f"range_perturbation must lie in [0, {MAX_RANGE_PERTURBATION:g}] (a round-off "
+            f"probe such as 1e-15), got {value!r}"
+        )
+    return float(value)
+
+
 def run_episode(
     world: str,
     seed: int,
@@ -220,6 +235,7 @@ def run_episode(
     max_steps: int | None = None,
     progress: ProgressCallback | None = None,
     overrides: Mapping[str, Any] | None = None,
+    range_perturbation: float = 0.0,
 ) -> EpisodeLog:
     """Drive a world's route with SLAM in the loop and log truth and belief per step.
 
@@ -236,6 +252,12 @@ def run_episode(
         progress: optional callback after every step (step number, belief).
         overrides: optional configuration sections applied over the preset
             (:meth:`SlamConfig.from_dict`); the log keeps the preset's name.
+        range_perturbation: every range the filter gets is multiplied by ``1 + this``
+            (at most :data:`MAX_RANGE_PERTURBATION`; the simulation is unchanged). A
+            value like ``1e-15`` changes the last bit of some ranges: the run is then
+            another sample of the same filter's round-off, which is how the spread of
+            a configuration's figures is measured ("Status and known gaps" in the
+            README).
 
     Returns:
         The episode log.
@@ -248,6 +270,8 @@ def run_episode(
 
     if max_steps is not None and max_steps < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    check_range_perturbation(range_perturbation)
+    range_scale = 1.0 + float(range_perturbation)
     limit = DEFAULT_STEP_LIMIT if max_steps is None else int(max_steps)
     env = LidarWorldEnv(world=world)
     if env.world is None or env.world.route is None:
@@ -271,7 +295,10 @@ def run_episode(
             if follower.done:
                 break
             obs, _, terminated, _, info = env.step(action)
-            belief = slam.step(obs["odometry"], obs["scan"], info["bearings"])
+            ranges = obs["scan"]
+            if range_scale != 1.0:
+                ranges = np.asarray(ranges, dtype=float) * range_scale
+            belief = slam.step(obs["odometry"], ranges, info["bearings"])
             true_poses.append(info["pose"])
             odom_poses.append(info["odom_pose"])
             slam_poses.append(belief.robot_pose)
@@ -950,6 +977,7 @@ def evaluate(
     max_steps: int | None = None,
     print_table: bool = True,
     overrides: Mapping[str, Any] | None = None,
+    range_perturbation: float = 0.0,
 ) -> dict[str, Any]:
     """Run one episode per seed and write metrics, figures and trajectories.
 
@@ -963,17 +991,20 @@ def evaluate(
         print_table: print :func:`format_table` of the result to standard output.
         overrides: optional ``{"model": {...}, "filter": {...}, "icp": {...}}`` applied
             over the preset (:meth:`SlamConfig.from_dict`), e.g. a measured option.
+        range_perturbation: a round-off probe (:func:`run_episode`), 0 by default.
 
     Returns:
         The content of ``out_dir/metrics.json``: ``world``, ``preset``, ``overrides``,
-        ``seeds``, ``machine``, ``per_seed`` (one :func:`episode_metrics` dict per seed)
-        ``mean`` (:func:`mean_metrics`) and ``sem`` (its standard error over the seeds,
-        :func:`sem_metrics`). NaN metrics are written as ``null``.
+        ``range_perturbation``, ``seeds``, ``machine``, ``per_seed`` (one
+        :func:`episode_metrics` dict per seed), ``mean`` (:func:`mean_metrics`) and
+        ``sem`` (its standard error over the seeds, :func:`sem_metrics`). NaN metrics are
+        written as ``null``.
     """
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("evaluate needs at least one seed")
     SlamConfig.from_dict({"preset": preset, **(overrides or {})})  # fail early
+    range_perturbation = check_range_perturbation(range_perturbation)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     per_seed = []
@@ -986,7 +1017,13 @@ def evaluate(
 
         try:
             log = run_episode(
-                world, seed, preset, max_steps, tick if bar is not None else None, overrides
+                world,
+                seed,
+                preset,
+                max_steps,
+                tick if bar is not None else None,
+                overrides,
+                range_perturbation,
             )
         finally:
             if bar is not None:
@@ -997,6 +1034,7 @@ def evaluate(
         "world": per_seed[0]["world"],
         "preset": preset,
         "overrides": dict(overrides or {}),
+        "range_perturbation": range_perturbation,
         "seeds": seeds,
         "machine": machine_description(),
         "per_seed": per_seed,
@@ -1076,6 +1114,8 @@ def format_table(metrics: Mapping[str, Any]) -> str:
     title = f"{metrics['world']} / preset {metrics['preset']} / {len(metrics['per_seed'])} seed(s)"
     if metrics.get("overrides"):
         title += f" / --set {json.dumps(metrics['overrides'], separators=(',', ':'))}"
+    if metrics.get("range_perturbation"):
+        title += f" / --range-perturbation {metrics['range_perturbation']:g}"
     rule = "-" * len(line(header))
     n_summary = 2 if sem else 1
     body, summary = rows[:-n_summary], rows[-n_summary:]
@@ -1185,6 +1225,15 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     parser.add_argument(
         "--max-steps", type=int, default=None, help="step budget per seed (default: whole route)"
     )
+    parser.add_argument(
+        "--range-perturbation",
+        type=float,
+        default=0.0,
+        metavar="EPS",
+        help="multiply every range the filter gets by 1 + EPS (at most "
+        f"{MAX_RANGE_PERTURBATION:g}); EPS = 1e-15 gives another sample of the same "
+        "filter's round-off, to measure how much of a difference is round-off",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=cmd_evaluate)
     return parser
@@ -1202,6 +1251,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         max_steps=args.max_steps,
         print_table=False,
         overrides=args.overrides,
+        range_perturbation=args.range_perturbation,
     )
     print(format_table(metrics))
     print(
