@@ -628,6 +628,26 @@ def test_batched_cycles_match_single_alignments(watch):
     assert many[0].reason == expected[next(iter(watch), "")]
 
 
+def test_association_hash_is_stable_and_order_free():
+    first = icp._association_keys(8).copy()
+    grown = icp._association_keys(first.size + 5000)  # growing keeps every key
+    np.testing.assert_array_equal(grown[: first.size], first)
+    assert np.all(grown % 2 == 1) and np.unique(grown).size == grown.size
+    rng = np.random.default_rng(3)
+    j, keep = rng.integers(0, 6, 40), rng.random(40) < 0.8
+    codes = icp._association_hash(j, keep)
+    total = int(np.add.reduce(codes))
+    # any order of summation (the batch sums runs of points) gives the same hash ...
+    assert int(np.add.reduce(codes[rng.permutation(40)])) == total
+    # ... and one point on another line, or one point left out, changes it
+    other = j.copy()
+    other[7] = (other[7] + 1) % 6
+    assert int(np.add.reduce(icp._association_hash(other, keep))) != total
+    dropped = keep.copy()
+    dropped[11] = not dropped[11]
+    assert int(np.add.reduce(icp._association_hash(j, dropped))) != total
+
+
 # ----------------------------------------------------------------- pose bound
 
 

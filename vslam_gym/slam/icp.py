@@ -641,12 +641,19 @@ _HASH_SEED = 20261126
 
 
 def _association_keys(n: int) -> np.ndarray:
-    """``(n,)`` odd uint64 keys, fixed for the session (cached, grown as needed)."""
+    """``(n,)`` odd uint64 keys, one per point position (cached).
+
+    The table only grows, by appending: key ``i`` never changes, so hashes taken before
+    and after a growth agree.
+    """
     global _KEYS
-    if _KEYS.size < n:
-        rng = np.random.default_rng(_HASH_SEED)
-        _KEYS = rng.integers(0, 2**63, size=max(n, 2 * _KEYS.size), dtype=np.uint64) * 2 + 1
-    return _KEYS[:n]
+    keys = _KEYS
+    while keys.size < n:
+        rng = np.random.default_rng([_HASH_SEED, keys.size])
+        more = rng.integers(0, 2**63, size=max(keys.size, 1024), dtype=np.uint64)
+        keys = np.concatenate([keys, more * np.uint64(2) + np.uint64(1)])
+    _KEYS = keys
+    return keys[:n]
 
 
 _KEYS = np.zeros(0, dtype=np.uint64)
