@@ -513,7 +513,10 @@ class FilterConfig:
             0.14 / 0.10 / 0.22 -> 0.26 / 0.15 / 0.09 / 0.25 m, ``house`` final error
             0.18 -> 0.57 m. Not the default. At 3 (seeds 0-9, 2026-11-25): median step
             13-36 % shorter on every world, but ``house`` final error 0.315 -> 0.471
-            m and ``small`` ATE 0.129 -> 0.163 m.
+            m and ``small`` ATE 0.129 -> 0.163 m. Again at 3 with the side-by-side ICP
+            (2026-11-26): ``house`` median step 17.5 -> 14.9 ms, ``small`` ATE 0.098
+            -> 0.148 m (its round-off spread is 0.096-0.098 m), ``house`` 20-seed ATE
+            0.262 / 0.293 m in two samples (default 0.21-0.28 m).
         measurement_min_travel: a motion filter: the landmark measurement update (step 3
             on) runs only once the pose mean has moved at least this far [m] ...
         measurement_min_turn: ... or turned at least this much [rad] since the last
