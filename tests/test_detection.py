@@ -457,6 +457,20 @@ def test_bad_input_raises():
 # ------------------------------------------------------------- batched over models
 
 
+def assert_same_detection(got, single):
+    """``got`` equals ``single`` bit for bit: decision, statistics and every beam."""
+    assert (got.accepted, got.mean_d2, got.var_d2, got.loglik) == (
+        single.accepted,
+        single.mean_d2,
+        single.var_d2,
+        single.loglik,
+    )
+    for name in ("line", "gated", "mu_err", "var_err", "loglik", "u", "d2"):
+        np.testing.assert_array_equal(
+            getattr(got.association, name), getattr(single.association, name)
+        )
+
+
 def _varied_models(trials):
     """Models of different sizes: W from several scans, a closed and an open box."""
     models = [trials[k][0] for k in range(4)]
@@ -481,16 +495,7 @@ def test_detect_many_equals_one_model_at_a_time(trials, linearization):
     for model, pose, d, c in zip(models, poses, many, cached, strict=True):
         single = detect(model, scan, first, last, pose, SENSOR, config)
         for got in (d, c):
-            assert got.accepted == single.accepted
-            assert (got.mean_d2, got.var_d2, got.loglik) == (
-                single.mean_d2,
-                single.var_d2,
-                single.loglik,
-            )
-            for name in ("line", "gated", "mu_err", "var_err", "loglik", "u", "d2"):
-                np.testing.assert_array_equal(
-                    getattr(got.association, name), getattr(single.association, name)
-                )
+            assert_same_detection(got, single)
     # the same models seen from the right pose include accepted ones
     assert any(
         d.accepted for d in detect_many(models[:4], scan, first, last, [pose0] * 4, SENSOR, config)
@@ -517,16 +522,7 @@ def test_detect_many_with_a_set_per_model_equals_one_set_at_a_time(trials, linea
     for model, (f, la), pose, got in zip(models, spans, poses, many, strict=True):
         single = detect(model, scan, f, la, pose, SENSOR, config)
         assert got.association.n == la - f + 1
-        assert (got.accepted, got.mean_d2, got.var_d2, got.loglik) == (
-            single.accepted,
-            single.mean_d2,
-            single.var_d2,
-            single.loglik,
-        )
-        for name in ("line", "gated", "mu_err", "var_err", "loglik", "u", "d2"):
-            np.testing.assert_array_equal(
-                getattr(got.association, name), getattr(single.association, name)
-            )
+        assert_same_detection(got, single)
     assert any(d.accepted for d in many) and not all(d.accepted for d in many)
     with pytest.raises(ValueError, match="first <= last"):
         detect_many(models[:2], scan, [first, last], [last, first], poses[:2], SENSOR, config)

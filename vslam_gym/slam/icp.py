@@ -59,6 +59,7 @@ __all__ = [
     "candidate_landmarks",
     "line_geometry",
     "object_radius",
+    "segment_offsets",
     "visible_lines",
 ]
 
@@ -262,6 +263,19 @@ def _check_limits(max_range: float | None, half_fov: float | None) -> None:
 def _unit_clip(s: np.ndarray) -> np.ndarray:
     """Clip to ``[0, 1]`` (``np.clip`` has a large per-call overhead on small arrays)."""
     return np.minimum(np.maximum(s, 0.0), 1.0)
+
+
+def segment_offsets(qx, qy, ax, ay, abx, aby, inv_length2) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets ``(dx, dy)`` [m] from segments ``a -> a + ab`` to points ``(qx, qy)``.
+
+    The point minus its foot on the segment (not the infinite line, R-22); every
+    argument broadcasts (e.g. points ``(n, 1)`` against lines ``(L,)``, the constants of
+    :data:`LineGeometry`; ``inv_length2`` is ``1 / |ab|^2``, 0 for a zero-length line).
+    """
+    aqx = qx - ax
+    aqy = qy - ay
+    s = _unit_clip((aqx * abx + aqy * aby) * inv_length2)
+    return aqx - s * abx, aqy - s * aby
 
 
 class _Lines:
@@ -710,11 +724,9 @@ def _align(
                 break
             # Nearest visible segment of every point (R-22): dense (n, visible lines).
             sub = lines.subset(vis)
-            aqx = qx[:, None] - sub.ax
-            aqy = qy[:, None] - sub.ay
-            s = _unit_clip((aqx * sub.abx + aqy * sub.aby) * sub.inv_length2)
-            dx = aqx - s * sub.abx
-            dy = aqy - s * sub.aby
+            dx, dy = segment_offsets(
+                qx[:, None], qy[:, None], sub.ax, sub.ay, sub.abx, sub.aby, sub.inv_length2
+            )
             d2 = dx * dx + dy * dy
             j = np.argmin(d2, axis=1)  # into the visible lines
             near = d2[np.arange(j.size), j] <= max_d2 if max_d2 < math.inf else None
@@ -905,12 +917,7 @@ class _Batch:
 
     def nearest(self, vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every point's nearest visible segment (R-22): index ``(T,)`` and squared distance."""
-        ax, ay, abx, aby, inv_length2 = self.point
-        aqx = self.qx[:, None] - ax
-        aqy = self.qy[:, None] - ay
-        s = _unit_clip((aqx * abx + aqy * aby) * inv_length2)
-        dx = aqx - s * abx
-        dy = aqy - s * aby
+        dx, dy = segment_offsets(self.qx[:, None], self.qy[:, None], *self.point)
         d2 = np.where(vis[self.owner], dx * dx + dy * dy, np.inf)
         j = np.argmin(d2, axis=1)
         return j, d2[np.arange(j.size), j]

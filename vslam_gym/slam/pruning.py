@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vslam_gym.slam.icp import LineGeometry
+from vslam_gym.slam.icp import LineGeometry, segment_offsets
 from vslam_gym.slam.landmark import LandmarkModel
 
 __all__ = [
@@ -116,11 +116,10 @@ def _nearest_facing(
     points: np.ndarray, normals: np.ndarray, lines: LineGeometry
 ) -> tuple[np.ndarray, np.ndarray]:
     """Index and distance of each point's nearest line facing its way (inf: none)."""
-    apx = points[:, 0, None] - lines.ax
-    apy = points[:, 1, None] - lines.ay
-    s = np.clip((apx * lines.abx + apy * lines.aby) * lines.inv_length2, 0.0, 1.0)
-    dx = apx - s * lines.abx
-    dy = apy - s * lines.aby
+    dx, dy = segment_offsets(
+        points[:, 0, None], points[:, 1, None],
+        lines.ax, lines.ay, lines.abx, lines.aby, lines.inv_length2,
+    )  # fmt: skip
     facing = normals[:, 0, None] * lines.nx + normals[:, 1, None] * lines.ny >= MIN_NORMAL_COS
     d2 = np.where(facing, dx * dx + dy * dy, np.inf)
     j = np.argmin(d2, axis=1)
