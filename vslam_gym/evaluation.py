@@ -168,6 +168,7 @@ class EpisodeLog:
         final_belief: the belief after the last step.
         route_done: the route follower reached its last waypoint.
         wall_s: wall time [s] of the episode (simulation, filter and logging).
+        loop_closures: steps that fused a revisit match (``Belief.loop_closed``).
     """
 
     world_name: str
@@ -187,6 +188,7 @@ class EpisodeLog:
     final_belief: Belief | None = None
     route_done: bool = False
     wall_s: float = 0.0
+    loop_closures: int = 0
 
     @property
     def steps(self) -> int:
@@ -289,6 +291,7 @@ def run_episode(
     slam_poses, slam_covs = [belief.robot_pose], [belief.pose_cov]
     step_ms, counts, collisions = [], [len(belief.landmarks)], []
     decisions: list[DecisionRecord] = []
+    loop_closures = 0
     try:
         for step in range(1, limit + 1):
             action = follower(info["pose"])
@@ -306,6 +309,7 @@ def run_episode(
             step_ms.append(belief.step_ms)
             counts.append(len(belief.landmarks))
             collisions.append(bool(info["collision"]))
+            loop_closures += int(belief.loop_closed)
             hit_ids = info["hit_ids"]
             decisions.extend(
                 DecisionRecord(
@@ -345,6 +349,7 @@ def run_episode(
         final_belief=belief,
         route_done=follower.done,
         wall_s=time.perf_counter() - start,
+        loop_closures=loop_closures,
     )
 
 
@@ -624,6 +629,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     ``landmarks`` (final count),
     ``obstacles_mapped`` (distinct true obstacles among them), ``obstacles``,
     ``landmarks_per_obstacle`` (landmarks / obstacles mapped), ``duplicate_fraction``;
+    ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``);
     ``step_ms_median``, ``step_ms_p95``, ``step_ms_mean`` [ms] (the mean is what a
     throughput sees when a motion filter makes most steps cheap); ``wall_s`` [s].
     """
@@ -672,6 +678,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
             "obstacles": len(log.world.obstacles),
             "landmarks_per_obstacle": len(final.landmarks) / mapped if mapped else math.nan,
             "duplicate_fraction": duplicate_fraction(final_ids),
+            "loop_closures": log.loop_closures,
             "step_ms_median": median,
             "step_ms_p95": p95,
             "step_ms_mean": float(np.mean(log.step_ms)) if len(log.step_ms) else math.nan,

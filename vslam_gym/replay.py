@@ -90,7 +90,8 @@ def replay(
         A dict with ``metrics`` (``scans``, ``completed``, ``ate_rmse_m``,
         ``odom_ate_rmse_m``, ``final_error_m``, ``heading_rmse_rad``, ``landmarks``,
         ``step_ms_median``, ``step_ms_p95``, ``prealign``, ``prealigned_fraction`` (steps
-        that used the whole-scan match), ``error`` when not completed) and the
+        that used the whole-scan match), ``loop_closures`` (steps that fused a revisit
+        match, ``FilterConfig.loop_closure``), ``error`` when not completed) and the
         ``true``, ``odometry`` and ``slam`` pose arrays ``(T, 3)``, ``times`` and the
         final ``belief``.
 
@@ -118,7 +119,7 @@ def replay(
     )
     slam_poses: list[np.ndarray] = []
     step_ms: list[float] = []
-    prealigned = 0
+    prealigned = loop_closures = 0
     completed, error = True, ""
     bar = _progress(n, progress)
     belief = slam.belief
@@ -133,6 +134,7 @@ def replay(
         slam_poses.append(belief.robot_pose)
         step_ms.append(belief.step_ms)
         prealigned += int(belief.prealigned)
+        loop_closures += int(belief.loop_closed)
         if bar is not None:
             bar.update(1)
     if bar is not None:
@@ -159,6 +161,7 @@ def replay(
         "step_ms_p95": p95_ms,
         "prealign": config.filter.prealign,
         "prealigned_fraction": prealigned / max(len(step_ms), 1),
+        "loop_closures": loop_closures,
     }
     if error:
         metrics["error"] = error

@@ -607,6 +607,24 @@ class FilterConfig:
             noise per direction; >= 0.
         prune_merge_probability: chi-square gate probability of the merge measurement's
             innovation; in ``(0, 1)``.
+        loop_closure: loop closure by revisits (:mod:`vslam_gym.slam.loop_closure`; not
+            in the thesis): every measurement update keeps its scan as a keyframe at the
+            updated pose (``loop_keyframe_distance`` / ``loop_keyframe_heading_deg``
+            apart); before a measurement update the whole scan is aligned (the
+            ``matcher`` parameters, without the prior, ambiguous matches declined) to
+            the keyframes made at least ``loop_min_age`` measurement updates earlier
+            within ``loop_radius`` of the predicted position, and a match with at least
+            ``loop_min_inlier_fraction`` inliers within ``loop_max_mahalanobis`` of the
+            predicted pose (pose covariance plus the ICP gate's floor plus the match's)
+            updates the whole state as a measurement of the pose. The drift of a long
+            loop exceeds the per-landmark ICP gate, so without it the first landmarks
+            are not re-associated on the return.
+        loop_radius: see ``loop_closure`` [m]; > 0.
+        loop_min_age: see ``loop_closure`` (measurement updates); >= 1.
+        loop_keyframe_distance: see ``loop_closure`` [m]; >= 0.
+        loop_keyframe_heading_deg: see ``loop_closure`` [deg]; >= 0.
+        loop_min_inlier_fraction: see ``loop_closure``; in ``[0, 1]``.
+        loop_max_mahalanobis: see ``loop_closure``; > 0.
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -653,6 +671,13 @@ class FilterConfig:
     prune_merge_max_offset: float = 0.5
     prune_merge_sigma: float = 0.02
     prune_merge_probability: float = 0.99
+    loop_closure: bool = False
+    loop_radius: float = 3.0
+    loop_min_age: int = 60
+    loop_keyframe_distance: float = 0.5
+    loop_keyframe_heading_deg: float = 15.0
+    loop_min_inlier_fraction: float = 0.4
+    loop_max_mahalanobis: float = 6.0
 
     def __post_init__(self) -> None:
         floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
@@ -707,6 +732,24 @@ class FilterConfig:
                 "FilterConfig.prune_merge_probability must lie in (0, 1), got "
                 f"{self.prune_merge_probability!r}"
             )
+        if not isinstance(self.loop_closure, bool):
+            raise ValueError(f"FilterConfig.loop_closure must be a bool, got {self.loop_closure!r}")
+        for name in ("loop_radius", "loop_max_mahalanobis"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0.0):
+                raise ValueError(f"FilterConfig.{name} must be finite and > 0, got {value!r}")
+        for name in ("loop_keyframe_distance", "loop_keyframe_heading_deg"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"FilterConfig.{name} must be finite and >= 0, got {value!r}")
+        if not 0.0 <= self.loop_min_inlier_fraction <= 1.0:
+            raise ValueError(
+                "FilterConfig.loop_min_inlier_fraction must lie in [0, 1], got "
+                f"{self.loop_min_inlier_fraction!r}"
+            )
+        age = self.loop_min_age
+        if isinstance(age, bool) or not isinstance(age, int) or age < 1:
+            raise ValueError(f"FilterConfig.loop_min_age must be an integer >= 1, got {age!r}")
         if not isinstance(self.prune_merge, bool):
             raise ValueError(f"FilterConfig.prune_merge must be a bool, got {self.prune_merge!r}")
         steps = self.prune_idle_steps
@@ -751,6 +794,7 @@ class FilterConfig:
             verify_heading_sigma=0.0,
             observation_model_sigma=0.0,
             observation_model_heading_sigma=0.0,
+            loop_closure=False,
         )
         base.update(overrides)
         return dataclass_from_dict(cls, base)

@@ -54,6 +54,7 @@ from vslam_gym.slam.icp import (
 )
 from vslam_gym.slam.landmark import LandmarkModel, prune_unknown_chains
 from vslam_gym.slam.likelihood import exponential_rate
+from vslam_gym.slam.loop_closure import LoopClosure
 from vslam_gym.slam.motion import (
     check_increments,
     compose,
@@ -314,6 +315,7 @@ class Belief:
             ``decisions`` is empty).
         pruned: ids of the landmarks removed in the last step as covered duplicates
             (``FilterConfig.prune_covered_distance``).
+        loop_closed: the last step fused a revisit match (``FilterConfig.loop_closure``).
     """
 
     step: int
@@ -327,6 +329,7 @@ class Belief:
     prealigned: bool = False
     measured: bool = False
     pruned: tuple[int, ...] = ()
+    loop_closed: bool = False
 
 
 @dataclass
@@ -528,6 +531,8 @@ class VertexSLAM:
         self._step_ms = 0.0
         self._local_map = LocalMap(self.config.matcher)
         self._matcher_pose = self._mu[:3].copy()  # "odometry": pose in the matcher's frame
+        self._loop = self._make_loop_closure()
+        self._loop_closed = False
         self._prealigned = False
         self._measured = False
         self._measured_at: np.ndarray | None = None  # pose after the last measurement update
@@ -561,6 +566,7 @@ class VertexSLAM:
             prealigned=self._prealigned,
             measured=self._measured,
             pruned=self._pruned,
+            loop_closed=self._loop_closed,
         )
 
     def step(self, odometry, ranges, bearings) -> Belief:
@@ -603,13 +609,20 @@ class VertexSLAM:
                 self._prealigned = self._fuse_match(points)
         self._measured = self._moved_enough()
         self._pruned = ()
+        self._loop_closed = False
         if self._measured:
             self._measurements += 1
+            loop_points = None
+            if self._loop is not None:
+                loop_points = scan_points(scan.ranges, scan.bearings, scan.max_range)
+                self._loop_closed = self._close_loop(loop_points)
             self._decisions = tuple(self._measurement_update(scan))
             self._refresh_models()
             if self.config.filter.prune_covered_distance > 0.0:
                 self._pruned = self._prune_covered()
             self._measured_at = self._mu[:3].copy()
+            if self._loop is not None:
+                self._loop.add(loop_points, self._mu[:3], self._sigma[:3, :3], self._measurements)
         else:
             self._decisions = ()
         if mode == "fuse":
@@ -707,6 +720,36 @@ class VertexSLAM:
             )
         except (ValueError, np.linalg.LinAlgError):  # degenerate numbers: not fused
             return False
+        return True
+
+    # ------------------------------------------------------------------ loop closure
+
+    def _make_loop_closure(self) -> LoopClosure | None:
+        """The revisit keyframes and tests of ``FilterConfig.loop_closure`` (None: off)."""
+        cfg = self.config.filter
+        if not cfg.loop_closure:
+            return None
+        return LoopClosure(
+            self.config.matcher,
+            radius=cfg.loop_radius,
+            min_age=cfg.loop_min_age,
+            keyframe_distance=cfg.loop_keyframe_distance,
+            keyframe_heading_deg=cfg.loop_keyframe_heading_deg,
+            min_inlier_fraction=cfg.loop_min_inlier_fraction,
+            max_mahalanobis=cfg.loop_max_mahalanobis,
+        )
+
+    def _close_loop(self, points: np.ndarray) -> bool:
+        """Fuse the scan's revisit match as a pose measurement; whether one was fused."""
+        assert self._loop is not None
+        found = self._loop.match(points, self._mu[:3], self._gate_covariance(), self._measurements)
+        if found is None:
+            return False
+        try:
+            mu, sigma = pose_measurement_update(self._mu, self._sigma, found.pose, found.cov)
+        except np.linalg.LinAlgError:  # degenerate numbers: not fused
+            return False
+        self._mu, self._sigma = mu, sigma
         return True
 
     # ------------------------------------------------------------------ measurement

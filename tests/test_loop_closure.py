@@ -1,0 +1,141 @@
+"""Loop closure by revisits (``FilterConfig.loop_closure``, slam/loop_closure.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _raycast import bearings_deg, cast, polygon_edges
+
+from vslam_gym.slam.config import FilterConfig, SensorConfig
+from vslam_gym.slam.filter import SlamConfig, VertexSLAM
+from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.loop_closure import LoopClosure, RevisitKeyframes
+from vslam_gym.slam.motion import increments_between
+from vslam_gym.slam.scan_matching import ScanMatcherConfig, scan_points
+
+SENSOR = SensorConfig()
+PHI = bearings_deg()
+# A 12 m x 8 m room with an off-centre pillar and a notch: no symmetry to confuse a match.
+ROOM = [
+    np.array([(-2, -4), (10, -4), (10, 1), (9, 1), (9, 2), (10, 2), (10, 4), (-2, 4)], float),
+    np.array([(4, 0.5), (5, 0.5), (5, 1.5), (4, 1.5)], float),
+]
+EDGES = polygon_edges(ROOM)
+GATE_COV = np.diag([0.2, 0.2, 0.1]) ** 2
+
+
+def scan_at(pose, rng=None):
+    ranges = cast(pose, EDGES, PHI, SENSOR.max_range, SENSOR.sigma_range, 0.0, rng)
+    return scan_points(ranges, PHI, SENSOR.max_range)
+
+
+def test_revisit_keyframes_are_the_old_ones_near_the_position():
+    config = ScanMatcherConfig(
+        revisit_radius=3.0,
+        keyframe_distance=0.5,
+        keyframe_heading_deg=15.0,
+        revisit_max_keyframes=4,
+    )
+    keyframes = RevisitKeyframes(config, min_age=30)
+    for i in range(10):  # poses 1 m apart along x, stamped 0, 10, ..., 90
+        pose = np.array([float(i), 0.0, 0.0])
+        assert keyframes.add_keyframe(scan_at(pose), pose, (i + 1) * np.eye(3), 10 * i)
+    assert not keyframes.add_keyframe(scan_at([9.2, 0, 0]), np.array([9.2, 0, 0]), np.eye(3), 95)
+    keyframes.now = 100  # stamps <= 70 are old enough: x = 0..7
+    near = np.array([2.0, 0.0, 0.0])
+    assert keyframes._select(near) == (0, 1, 2, 3)  # x in [-1, 5], the 4 nearest (ties: stable)
+    assert keyframes.reference(near) is not None
+    np.testing.assert_allclose(keyframes.selected_covariance(), 2.5 * np.eye(3))
+    assert keyframes._select(np.array([8.5, 0.0, 0.0])) == (6, 7)  # 8 and 9 are too recent
+    keyframes.now = 40  # stamps <= 10
+    assert keyframes._select(np.array([5.0, 0.0, 0.0])) == ()
+    assert keyframes.reference(np.array([5.0, 0.0, 0.0])) is None
+    keyframes.clear()
+    assert keyframes.stored == 0 and keyframes._select(near) == ()
+
+
+def _closure(**overrides):
+    args = dict(
+        radius=3.0,
+        min_age=50,
+        keyframe_distance=0.5,
+        keyframe_heading_deg=15.0,
+        min_inlier_fraction=0.4,
+        max_mahalanobis=6.0,
+    )
+    args.update(overrides)
+    loop = LoopClosure(ScanMatcherConfig(), **args)
+    rng = np.random.default_rng(0)
+    for i, x in enumerate(np.arange(0.0, 3.01, 0.5)):  # the first visit, stamps 0..6
+        pose = np.array([x, -1.0, 0.1 * i])
+        loop.add(scan_at(pose, rng), pose, 1e-6 * np.eye(3), i)
+    return loop, rng
+
+
+def test_match_recovers_the_pose_of_an_earlier_visit_after_a_drift():
+    loop, rng = _closure()
+    true = np.array([1.2, -0.8, 0.25])
+    predicted = true + np.array([0.6, -0.45, 0.08])  # beyond the ICP gate's 3 sigma
+    found = loop.match(scan_at(true, rng), predicted, GATE_COV, now=100)
+    assert found is not None
+    assert np.hypot(*(found.pose[:2] - true[:2])) < 0.03
+    assert abs(wrap_angle(found.pose[2] - true[2])) < 0.01
+    assert found.match.inlier_fraction >= 0.4
+    assert 3.0 < found.mahalanobis < 6.0
+    assert np.all(np.linalg.eigvalsh(found.cov) > 0)
+    np.testing.assert_allclose(found.cov, found.cov.T)
+    # the same scan: too recent keyframes, a tighter gate, a stricter inlier test
+    assert loop.match(scan_at(true, rng), predicted, GATE_COV, now=40) is None
+    tight, _ = _closure(max_mahalanobis=3.0)
+    assert tight.match(scan_at(true, rng), predicted, GATE_COV, now=100) is None
+    strict, _ = _closure(min_inlier_fraction=1.0)
+    assert strict.match(scan_at(true, rng), predicted, GATE_COV, now=100) is None
+
+
+def _drive(loop_closure: bool, steps: int = 150):
+    """Around the pillar and back to the start, the odometry turning 0.4 deg a step too
+    far to the left; returns the beliefs and the true poses."""
+    t = np.linspace(0.0, 2.0 * np.pi, steps)
+    true = np.column_stack([4.5 + 3.5 * np.sin(t), 1.0 - 2.5 * np.cos(t), t])
+    config = SlamConfig(filter=FilterConfig(loop_closure=loop_closure, loop_min_age=40))
+    slam = VertexSLAM(SENSOR, config, initial_pose=true[0])
+    rng = np.random.default_rng(1)
+    beliefs = []
+    for k in range(1, steps):
+        u = increments_between(true[k - 1], true[k]) + np.array([np.deg2rad(0.4), 0.0, 0.0])
+        ranges = cast(true[k], EDGES, PHI, SENSOR.max_range, SENSOR.sigma_range, 0.0, rng)
+        beliefs.append(slam.step(u, ranges, PHI))
+    return slam, beliefs, true
+
+
+def test_loop_closure_fuses_revisits_and_keeps_the_state_positive_definite():
+    slam, beliefs, true = _drive(True)
+    closed = [k for k, b in enumerate(beliefs) if b.loop_closed]
+    assert closed and min(closed) >= 40  # only keyframes 40 updates old
+    err = np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2]))
+    assert err < 0.1, err
+    sigma = slam._sigma
+    np.testing.assert_array_equal(sigma, sigma.T)
+    assert np.linalg.eigvalsh(sigma).min() > 0
+    _, off, _ = _drive(False)
+    assert not any(b.loop_closed for b in off)
+
+
+@pytest.mark.parametrize(
+    "overrides, match",
+    [
+        ({"loop_closure": 1}, "loop_closure must be a bool"),
+        ({"loop_radius": 0.0}, "loop_radius"),
+        ({"loop_max_mahalanobis": float("nan")}, "loop_max_mahalanobis"),
+        ({"loop_keyframe_distance": -1.0}, "loop_keyframe_distance"),
+        ({"loop_min_inlier_fraction": 1.5}, "loop_min_inlier_fraction"),
+        ({"loop_min_age": 0}, "loop_min_age"),
+    ],
+)
+def test_loop_closure_options_are_validated(overrides, match):
+    with pytest.raises(ValueError, match=match):
+        FilterConfig(**overrides)
+
+
+def test_thesis_preset_has_no_loop_closure():
+    assert SlamConfig.thesis().filter.loop_closure is False

@@ -1,0 +1,202 @@
+"""Loop closure by revisits: the scan aligned to the keyframes of an earlier visit.
+
+The per-landmark ICP starts from the predicted pose and its result must pass a
+plausibility gate around it (``FilterConfig.icp_max_pose_mahalanobis``). After a long
+loop the drift exceeds that gate (``house``: 0.5-1 m and 5 degrees at a pose standard
+deviation of centimetres), so the first landmarks are not re-associated and the loop
+stays open. This module gives the filter a second, independent look at a revisit:
+
+1. after every measurement update the scan is kept as a keyframe (points and normals,
+   :class:`~vslam_gym.slam.scan_matching.LocalMap`) at the filter's pose estimate, with
+   that pose's covariance, when it moved or turned enough from the last keyframe;
+2. before a measurement update, the keyframes made at least ``min_age`` measurement
+   updates earlier whose pose lies within ``radius`` of the predicted pose form the
+   reference, and the whole scan is aligned to it
+   (:func:`~vslam_gym.slam.scan_matching.match_scan`, without the prior: a drifted
+   prior must not pull the match, and an ambiguous match is declined);
+3. a match with at least ``min_inlier_fraction`` of the scan's points as inliers, within
+   ``max_mahalanobis`` of the predicted pose (covariance: the pose's plus the gate floor
+   plus the match's), is a direct measurement of the pose in the frame of the earlier
+   visit (:func:`~vslam_gym.slam.state_update.pose_measurement_update`, noise: the
+   match's covariance plus the mean covariance of the selected keyframes' poses).
+
+The update moves the pose and, through their correlations, every landmark made since
+the loop began: an EKF loop closure. The keyframes' pose errors are correlated with the
+current state, which the measurement ignores (they are small for the early keyframes a
+loop returns to).
+
+Frames and units: lidar poses ``[x, y, theta]`` ([m], [m], [rad]) in the map frame;
+scan points in the lidar frame [m]. Pure numpy/scipy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.scan_matching import LocalMap, MatchResult, ScanMatcherConfig, match_scan
+
+__all__ = ["LoopClosure", "RevisitKeyframes"]
+
+
+class RevisitKeyframes(LocalMap):
+    """Keyframes at the filter's pose estimates; the reference is the old ones nearby.
+
+    A keyframe is stamped with the measurement update that made it and keeps its pose
+    covariance. :meth:`reference` selects the keyframes stamped at least ``min_age``
+    before :attr:`now` whose pose lies within ``config.revisit_radius`` of the position
+    asked about (at most ``config.revisit_max_keyframes``, the nearest); None when there
+    is none.
+    """
+
+    def __init__(self, config: ScanMatcherConfig, min_age: int) -> None:
+        super().__init__(config)
+        self.min_age = int(min_age)
+        self.now = 0  # the current measurement update
+        self._stamps: list[int] = []
+        self._covs: list[np.ndarray] = []
+
+    def clear(self) -> None:
+        """Forget every keyframe."""
+        super().clear()
+        self._stamps.clear()
+        self._covs.clear()
+
+    def add_keyframe(
+        self, points: np.ndarray, pose: np.ndarray, cov: np.ndarray, stamp: int
+    ) -> bool:
+        """Add a scan's lidar-frame points ``(m, 2)`` seen from ``pose`` (cov ``(3, 3)``).
+
+        Returns whether it became a keyframe (moved or turned enough from the last).
+        """
+        if not self.add(points, pose):
+            return False
+        self._stamps.append(int(stamp))
+        self._covs.append(np.array(cov, dtype=float))
+        return True
+
+    def _select(self, near: np.ndarray | None) -> tuple[int, ...]:
+        if near is None or not self._poses:
+            return ()
+        old = np.flatnonzero(np.array(self._stamps) <= self.now - self.min_age)
+        if old.size == 0:
+            return ()
+        poses = np.array([self._poses[i] for i in old.tolist()])
+        dist = np.hypot(poses[:, 0] - near[0], poses[:, 1] - near[1])
+        order = np.argsort(dist, kind="stable")
+        close = old[order[dist[order] <= self.config.revisit_radius]]
+        return tuple(sorted(close[: self.config.revisit_max_keyframes].tolist()))
+
+    def reference(
+        self, near: np.ndarray | None = None
+    ) -> tuple[cKDTree, np.ndarray, np.ndarray] | None:
+        """``(tree, points, normals)`` of the old keyframes near ``near``, or None."""
+        if not self._select(near):
+            return None
+        return super().reference(near)
+
+    def selected_covariance(self) -> np.ndarray:
+        """Mean pose covariance ``(3, 3)`` of the keyframes of the last reference."""
+        return np.mean([self._covs[i] for i in self._selection], axis=0)
+
+
+@dataclass(frozen=True)
+class LoopMatch:
+    """A revisit match that passed its tests: the pose measurement to fuse.
+
+    Attributes:
+        pose: ``(3,)`` the lidar pose in the frame of the earlier visit.
+        cov: ``(3, 3)`` its noise: the match's covariance plus the keyframes' poses'.
+        match: the matcher's result.
+        mahalanobis: distance of ``pose`` from the predicted pose (see
+            :meth:`LoopClosure.match`).
+    """
+
+    pose: np.ndarray
+    cov: np.ndarray
+    match: MatchResult
+    mahalanobis: float
+
+
+class LoopClosure:
+    """Revisit keyframes and the tests a revisit match must pass (module docstring).
+
+    Args:
+        matcher: the whole-scan matcher's parameters (keyframe spacing, radius and
+            ambiguity are set from the arguments below).
+        radius: keyframes within this distance [m] of the predicted position are
+            candidates.
+        min_age: ... if made at least this many measurement updates earlier.
+        keyframe_distance: a scan becomes a keyframe when it moved this far [m] ...
+        keyframe_heading_deg: ... or turned this much [deg] from the last keyframe.
+        min_inlier_fraction: smallest fraction of the scan's points within the
+            matcher's ``inlier_distance`` of the earlier visit's points.
+        max_mahalanobis: largest distance of the match from the predicted pose.
+    """
+
+    def __init__(
+        self,
+        matcher: ScanMatcherConfig,
+        radius: float,
+        min_age: int,
+        keyframe_distance: float,
+        keyframe_heading_deg: float,
+        min_inlier_fraction: float,
+        max_mahalanobis: float,
+    ) -> None:
+        config = replace(
+            matcher,
+            revisit_radius=radius,
+            keyframe_distance=keyframe_distance,
+            keyframe_heading_deg=keyframe_heading_deg,
+            on_ambiguity="decline",
+        )
+        self.keyframes = RevisitKeyframes(config, min_age)
+        self.min_inlier_fraction = float(min_inlier_fraction)
+        self.max_mahalanobis = float(max_mahalanobis)
+
+    def reset(self) -> None:
+        """Forget every keyframe."""
+        self.keyframes.clear()
+        self.keyframes.now = 0
+
+    def match(
+        self, points: np.ndarray, pose: np.ndarray, gate_cov: np.ndarray, now: int
+    ) -> LoopMatch | None:
+        """The scan's revisit match from the predicted lidar ``pose``, or None.
+
+        Args:
+            points: ``(m, 2)`` the scan's returns in the lidar frame [m].
+            pose: ``(3,)`` predicted lidar pose.
+            gate_cov: ``(3, 3)`` the pose covariance with the ICP gate's floor: it sets
+                the span of the matcher's heading hypotheses and, plus the match's
+                covariance, the Mahalanobis test.
+            now: the current measurement update (keyframe ages).
+        """
+        self.keyframes.now = int(now)
+        try:
+            result = match_scan(
+                points, self.keyframes, pose, gate_cov, self.keyframes.config, use_prior=False
+            )
+        except (ValueError, np.linalg.LinAlgError):  # degenerate numbers: no match
+            return None
+        if result is None or result.inlier_fraction < self.min_inlier_fraction:
+            return None
+        cov = result.cov + self.keyframes.selected_covariance()
+        d = result.pose - pose
+        d[2] = wrap_angle(d[2])
+        try:
+            m2 = float(d @ np.linalg.solve(gate_cov + cov, d))
+        except np.linalg.LinAlgError:
+            return None
+        distance = float(np.sqrt(max(m2, 0.0)))
+        if not distance <= self.max_mahalanobis:
+            return None
+        return LoopMatch(result.pose.copy(), cov, result, distance)
+
+    def add(self, points: np.ndarray, pose: np.ndarray, cov: np.ndarray, now: int) -> bool:
+        """Keep the scan as a keyframe at the updated ``pose`` (cov ``(3, 3)``)."""
+        return self.keyframes.add_keyframe(points, pose, cov, now)
