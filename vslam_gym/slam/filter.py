@@ -158,7 +158,8 @@ class SlamConfig:
         (``create_beside_candidates=False``: 50-100 landmarks instead of 300-500 in the
         first 300 scans) and weighs its observations with
         ``observation_information_scale`` (the matched motion stays the main pose
-        information). Figures in the README.
+        information). The default's loop closure by revisits (``loop_closure``) is on
+        here too (ACES 1.38 -> 0.93 m with synthetic odometry). Figures in the README.
         """
         return cls(
             filter=FilterConfig(
@@ -194,7 +195,9 @@ class SlamConfig:
         0.2 rad (``measurement_min_travel``, ``measurement_min_turn``), without the
         default's update verification (``verify_heading_sigma``). Measured (README,
         "Presets"): 2.5-3.5 times less CPU time per step than the default, at a larger
-        position ATE.
+        position ATE. The default's loop closure by revisits (``loop_closure``) is on
+        here too (seeds 0-9, off -> on, final error: small 0.181 -> 0.036 m, curved
+        0.083 -> 0.043 m, ``house`` 0.681 -> 0.354 m; single_landmark unchanged).
         """
         return cls(
             filter=FilterConfig(

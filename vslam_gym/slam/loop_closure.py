@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.scan_matching import LocalMap, MatchResult, ScanMatcherConfig, match_scan
 
-__all__ = ["LoopClosure", "RevisitKeyframes"]
+__all__ = ["LoopClosure", "LoopMatch", "RevisitKeyframes"]
 
 
 class RevisitKeyframes(LocalMap):
