@@ -376,6 +376,7 @@ def evaluate_agent(
     env_kwargs: Mapping[str, Any] | None = None,
     reward: str | None = None,
     shield: bool = False,
+    slam_config: str | Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Evaluate an agent over ``episodes`` seeded episodes; optionally write the files.
 
@@ -397,6 +398,9 @@ def evaluate_agent(
             policy was trained with (only the return depends on it).
         shield: run every episode under the wrapper's speed shield
             (:class:`vslam_gym.shield.SpeedShield`), e.g. for a policy trained with it.
+        slam_config: the wrapper's ``slam_config`` instead of the registration's (a
+            preset name or a :meth:`SlamConfig.from_dict` mapping, e.g. ``{"filter":
+            {"loop_closure": False}}``).
 
     Returns:
         ``{"agent", "env_id", "seed", "episodes", "max_steps", "machine", "per_episode",
@@ -416,6 +420,8 @@ def evaluate_agent(
     wrapper: dict[str, Any] = {} if reward is None else {"reward": reward}
     if shield:
         wrapper["shield"] = True
+    if slam_config is not None:
+        wrapper["slam_config"] = slam_config
     cue = frontier_cue(runner)
     if cue:  # a policy trained with the frontier cue observes it again
         wrapper["observation"] = {"frontier_count": cue}
@@ -453,6 +459,7 @@ def evaluate_agent(
         "env_id": env_id,
         "reward": reward or "registered",
         "shield": bool(shield),
+        "slam_config": slam_config or "registered",
         "seed": seed,
         "episodes": episodes,
         "max_steps": horizon,
@@ -502,6 +509,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="cap forward speed by the scan's free corridor (vslam_gym.shield)",
     )
+    parser.add_argument(
+        "--slam-config",
+        default=None,
+        help="SLAM preset name or JSON mapping over it (default: the registration's), "
+        'e.g. \'{"filter": {"loop_closure": false}}\'',
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -509,7 +522,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the evaluation, write the files, print the table."""
     args = build_parser().parse_args(argv)
+    slam = args.slam_config
     try:
+        if slam is not None and slam.lstrip().startswith("{"):
+            slam = json.loads(slam)
         result = evaluate_agent(
             args.agent,
             env_id=args.env,
@@ -521,6 +537,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             progress=not args.no_progress,
             reward=args.reward,
             shield=args.shield,
+            slam_config=slam,
         )
     except (ValueError, gym.error.Error) as err:
         print(f"error: {err}", file=sys.stderr)

@@ -92,6 +92,23 @@ def test_match_recovers_the_pose_of_an_earlier_visit_after_a_drift():
     assert strict.match(scan_at(true, rng), predicted, GATE_COV, now=100) is None
 
 
+def test_sigma_floor_widens_the_measurement_and_cooldown_skips_matches():
+    loop, rng = _closure()
+    floored, _ = _closure(sigma_floor=(0.05, 0.05, 0.01))
+    true = np.array([1.2, -0.8, 0.25])
+    scan = scan_at(true, rng)
+    plain = loop.match(scan, true, GATE_COV, now=100)
+    wide = floored.match(scan, true, GATE_COV, now=100)
+    np.testing.assert_allclose(wide.cov - plain.cov, np.diag([0.05, 0.05, 0.01]) ** 2)
+    cooling, _ = _closure(cooldown=10)
+    assert cooling.match(scan, true, GATE_COV, now=100) is not None  # nothing fused yet
+    cooling.fused(100)
+    assert cooling.match(scan, true, GATE_COV, now=109) is None
+    assert cooling.match(scan, true, GATE_COV, now=110) is not None
+    cooling.reset()
+    assert cooling.keyframes.stored == 0
+
+
 def _drive(loop_closure: bool, steps: int = 150):
     """Around the pillar and back to the start, the odometry turning 0.4 deg a step too
     far to the left; returns the beliefs and the true poses."""
@@ -130,6 +147,8 @@ def test_loop_closure_fuses_revisits_and_keeps_the_state_positive_definite():
         ({"loop_keyframe_distance": -1.0}, "loop_keyframe_distance"),
         ({"loop_min_inlier_fraction": 1.5}, "loop_min_inlier_fraction"),
         ({"loop_min_age": 0}, "loop_min_age"),
+        ({"loop_cooldown": -1}, "loop_cooldown"),
+        ({"loop_sigma_floor": (0.1, -0.1, 0.0)}, "loop_sigma_floor"),
     ],
 )
 def test_loop_closure_options_are_validated(overrides, match):

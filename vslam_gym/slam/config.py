@@ -633,6 +633,10 @@ class FilterConfig:
         loop_keyframe_heading_deg: see ``loop_closure`` [deg]; >= 0.
         loop_min_inlier_fraction: see ``loop_closure``; in ``[0, 1]``.
         loop_max_mahalanobis: see ``loop_closure``; > 0.
+        loop_sigma_floor: standard deviations ``(x [m], y [m], theta [rad])`` added in
+            quadrature to a revisit match's noise; each >= 0.
+        loop_cooldown: measurement updates after a fused revisit match before the next
+            match is tried; 0 tries every one; >= 0.
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -686,6 +690,8 @@ class FilterConfig:
     loop_keyframe_heading_deg: float = 15.0
     loop_min_inlier_fraction: float = 0.4
     loop_max_mahalanobis: float = 6.0
+    loop_sigma_floor: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    loop_cooldown: int = 0
 
     def __post_init__(self) -> None:
         floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
@@ -696,6 +702,17 @@ class FilterConfig:
             )
         # A frozen config stays hashable when built from JSON lists.
         object.__setattr__(self, "icp_gate_sigma_floor", tuple(float(v) for v in floor))
+        loop_floor = np.asarray(self.loop_sigma_floor, dtype=float)
+        if (
+            loop_floor.shape != (3,)
+            or not np.all(np.isfinite(loop_floor))
+            or np.any(loop_floor < 0)
+        ):
+            raise ValueError(
+                "FilterConfig.loop_sigma_floor must be 3 finite numbers >= 0, got "
+                f"{self.loop_sigma_floor!r}"
+            )
+        object.__setattr__(self, "loop_sigma_floor", tuple(float(v) for v in loop_floor))
         if not 0.0 <= self.icp_retry_min_fraction <= 1.0:
             raise ValueError(
                 "FilterConfig.icp_retry_min_fraction must lie in [0, 1], got "
@@ -758,6 +775,9 @@ class FilterConfig:
         age = self.loop_min_age
         if isinstance(age, bool) or not isinstance(age, int) or age < 1:
             raise ValueError(f"FilterConfig.loop_min_age must be an integer >= 1, got {age!r}")
+        cool = self.loop_cooldown
+        if isinstance(cool, bool) or not isinstance(cool, int) or cool < 0:
+            raise ValueError(f"FilterConfig.loop_cooldown must be an integer >= 0, got {cool!r}")
         if not isinstance(self.prune_merge, bool):
             raise ValueError(f"FilterConfig.prune_merge must be a bool, got {self.prune_merge!r}")
         steps = self.prune_idle_steps

@@ -740,6 +740,8 @@ class VertexSLAM:
             keyframe_heading_deg=cfg.loop_keyframe_heading_deg,
             min_inlier_fraction=cfg.loop_min_inlier_fraction,
             max_mahalanobis=cfg.loop_max_mahalanobis,
+            sigma_floor=cfg.loop_sigma_floor,
+            cooldown=cfg.loop_cooldown,
         )
 
     def _close_loop(self, points: np.ndarray) -> bool:
@@ -753,6 +755,7 @@ class VertexSLAM:
         except np.linalg.LinAlgError:  # degenerate numbers: not fused
             return False
         self._mu, self._sigma = mu, sigma
+        self._loop.fused(self._measurements)
         return True
 
     # ------------------------------------------------------------------ measurement

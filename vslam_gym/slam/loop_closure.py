@@ -18,7 +18,9 @@ stays open. This module gives the filter a second, independent look at a revisit
    ``max_mahalanobis`` of the predicted pose (covariance: the pose's plus the gate floor
    plus the match's), is a direct measurement of the pose in the frame of the earlier
    visit (:func:`~vslam_gym.slam.state_update.pose_measurement_update`, noise: the
-   match's covariance plus the mean covariance of the selected keyframes' poses).
+   match's covariance plus the mean covariance of the selected keyframes' poses plus
+   an optional floor); after a fused match, an optional cooldown of measurement
+   updates passes before the next is tried.
 
 The update moves the pose and, through their correlations, every landmark made since
 the loop began: an EKF loop closure. The keyframes' pose errors are correlated with the
@@ -135,6 +137,11 @@ class LoopClosure:
         min_inlier_fraction: smallest fraction of the scan's points within the
             matcher's ``inlier_distance`` of the earlier visit's points.
         max_mahalanobis: largest distance of the match from the predicted pose.
+        sigma_floor: standard deviations ``(x [m], y [m], theta [rad])`` added in
+            quadrature to the measurement's noise (the keyframes' pose errors beyond
+            their overconfident covariance).
+        cooldown: after a fused match (:meth:`fused`), this many measurement updates
+            pass before the next match is tried; 0: every one.
     """
 
     def __init__(
@@ -146,6 +153,8 @@ class LoopClosure:
         keyframe_heading_deg: float,
         min_inlier_fraction: float,
         max_mahalanobis: float,
+        sigma_floor: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        cooldown: int = 0,
     ) -> None:
         config = replace(
             matcher,
@@ -157,11 +166,19 @@ class LoopClosure:
         self.keyframes = RevisitKeyframes(config, min_age)
         self.min_inlier_fraction = float(min_inlier_fraction)
         self.max_mahalanobis = float(max_mahalanobis)
+        self.floor_cov = np.diag(np.square(np.asarray(sigma_floor, dtype=float)))
+        self.cooldown = int(cooldown)
+        self._last_fused: int | None = None
 
     def reset(self) -> None:
         """Forget every keyframe."""
         self.keyframes.clear()
         self.keyframes.now = 0
+        self._last_fused = None
+
+    def fused(self, now: int) -> None:
+        """Record that the match of measurement update ``now`` was fused (cooldown)."""
+        self._last_fused = int(now)
 
     def match(
         self, points: np.ndarray, pose: np.ndarray, gate_cov: np.ndarray, now: int
@@ -177,6 +194,8 @@ class LoopClosure:
             now: the current measurement update (keyframe ages).
         """
         self.keyframes.now = int(now)
+        if self._last_fused is not None and now - self._last_fused < self.cooldown:
+            return None
         try:
             result = match_scan(
                 points, self.keyframes, pose, gate_cov, self.keyframes.config, use_prior=False
@@ -185,7 +204,7 @@ class LoopClosure:
             return None
         if result is None or result.inlier_fraction < self.min_inlier_fraction:
             return None
-        cov = result.cov + self.keyframes.selected_covariance()
+        cov = result.cov + self.keyframes.selected_covariance() + self.floor_cov
         d = result.pose - pose
         d[2] = wrap_angle(d[2])
         try:
