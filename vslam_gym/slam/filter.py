@@ -600,11 +600,13 @@ class VertexSLAM:
     def _update(self, u: np.ndarray, scan: Scan) -> None:
         """The motion and measurement updates of :meth:`step` on validated inputs."""
         mode = self.config.filter.prealign
+        points = None  # the scan's lidar-frame points, for the whole-scan matcher
+        if mode != "none" or self._loop is not None:
+            points = scan_points(scan.ranges, scan.bearings, scan.max_range)
         if mode == "none":
             self._motion_update(u)
             self._prealigned = False
         else:
-            points = scan_points(scan.ranges, scan.bearings, scan.max_range)
             if mode == "odometry":
                 self._prealigned = self._matched_motion_update(u, points)
             else:
@@ -615,17 +617,15 @@ class VertexSLAM:
         self._loop_closed = False
         if self._measured:
             self._measurements += 1
-            loop_points = None
             if self._loop is not None:
-                loop_points = scan_points(scan.ranges, scan.bearings, scan.max_range)
-                self._loop_closed = self._close_loop(loop_points)
+                self._loop_closed = self._close_loop(points)
             self._decisions = tuple(self._measurement_update(scan))
             self._refresh_models()
             if self.config.filter.prune_covered_distance > 0.0:
                 self._pruned = self._prune_covered()
             self._measured_at = self._mu[:3].copy()
             if self._loop is not None:
-                self._loop.add(loop_points, self._mu[:3], self._sigma[:3, :3], self._measurements)
+                self._loop.add(points, self._mu[:3], self._sigma[:3, :3], self._measurements)
         else:
             self._decisions = ()
         if mode == "fuse":
