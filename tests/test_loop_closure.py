@@ -109,12 +109,13 @@ def test_sigma_floor_widens_the_measurement_and_cooldown_skips_matches():
     assert cooling.keyframes.stored == 0
 
 
-def _drive(loop_closure: bool, steps: int = 150):
+def _drive(loop_closure: bool, steps: int = 150, **options):
     """Around the pillar and back to the start, the odometry turning 0.4 deg a step too
     far to the left; returns the beliefs and the true poses."""
     t = np.linspace(0.0, 2.0 * np.pi, steps)
     true = np.column_stack([4.5 + 3.5 * np.sin(t), 1.0 - 2.5 * np.cos(t), t])
-    config = SlamConfig(filter=FilterConfig(loop_closure=loop_closure, loop_min_age=40))
+    filter_config = FilterConfig(loop_closure=loop_closure, loop_min_age=40, **options)
+    config = SlamConfig(filter=filter_config)
     slam = VertexSLAM(SENSOR, config, initial_pose=true[0])
     rng = np.random.default_rng(1)
     beliefs = []
@@ -138,6 +139,14 @@ def test_loop_closure_fuses_revisits_and_keeps_the_state_positive_definite():
     assert not any(b.loop_closed for b in off)
 
 
+def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
+    _, every, _ = _drive(True)
+    _, some, _ = _drive(True, loop_min_innovation=0.5)
+    _, none, _ = _drive(True, loop_min_innovation=1e6)
+    fused = [sum(b.loop_closed for b in run) for run in (every, some, none)]
+    assert fused[0] > fused[1] > fused[2] == 0, fused
+
+
 @pytest.mark.parametrize(
     "overrides, match",
     [
@@ -148,6 +157,7 @@ def test_loop_closure_fuses_revisits_and_keeps_the_state_positive_definite():
         ({"loop_min_inlier_fraction": 1.5}, "loop_min_inlier_fraction"),
         ({"loop_min_age": 0}, "loop_min_age"),
         ({"loop_cooldown": -1}, "loop_cooldown"),
+        ({"loop_min_innovation": -1.0}, "loop_min_innovation"),
         ({"loop_sigma_floor": (0.1, -0.1, 0.0)}, "loop_sigma_floor"),
     ],
 )

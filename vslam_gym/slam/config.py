@@ -642,6 +642,13 @@ class FilterConfig:
         loop_cooldown: measurement updates after a fused revisit match before the next
             match is tried; 0 tries every one; >= 0. 10 measured NEES 198 on the random
             worlds and ``house`` final error 0.199 m: 0 by default.
+        loop_min_innovation: a revisit match is fused only when it lies at least this
+            far (Mahalanobis distance, pose covariance plus the match's) from the
+            predicted pose: one that agrees with the belief closes nothing and would
+            only shrink the covariance again. 0 fuses every match; >= 0. Measured at 1
+            and 2: ``house`` seeds 0-9 unchanged (final error 0.050 / 0.051 m), but on
+            the random worlds (``frontier``, 20 worlds) no better: mean NEES 621 / 434,
+            ATE 0.136 / 0.133 m against 528 and 0.115 m. 0 by default.
     """
 
     odometry_alphas: tuple[float, float, float, float] = (0.01, 0.005, 0.005, 0.001)
@@ -697,6 +704,7 @@ class FilterConfig:
     loop_max_mahalanobis: float = 6.0
     loop_sigma_floor: tuple[float, float, float] = (0.0, 0.0, 0.0)
     loop_cooldown: int = 0
+    loop_min_innovation: float = 0.0
 
     def __post_init__(self) -> None:
         floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
@@ -743,6 +751,7 @@ class FilterConfig:
             "prune_merge_sigma",
             "observation_model_sigma",
             "observation_model_heading_sigma",
+            "loop_min_innovation",
         ):
             value = getattr(self, name)
             if not value >= 0.0:  # NaN fails too

@@ -750,6 +750,16 @@ class VertexSLAM:
         found = self._loop.match(points, self._mu[:3], self._gate_covariance(), self._measurements)
         if found is None:
             return False
+        floor = self.config.filter.loop_min_innovation
+        if floor > 0.0:  # the match agrees with the belief: nothing to close
+            d = found.pose - self._mu[:3]
+            d[2] = wrap_angle(d[2])
+            try:
+                m2 = float(d @ np.linalg.solve(self._sigma[:3, :3] + found.cov, d))
+            except np.linalg.LinAlgError:
+                return False
+            if m2 < floor**2:
+                return False
         try:
             mu, sigma = pose_measurement_update(self._mu, self._sigma, found.pose, found.cov)
         except np.linalg.LinAlgError:  # degenerate numbers: not fused
