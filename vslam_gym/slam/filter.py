@@ -742,6 +742,8 @@ class VertexSLAM:
             max_mahalanobis=cfg.loop_max_mahalanobis,
             sigma_floor=cfg.loop_sigma_floor,
             cooldown=cfg.loop_cooldown,
+            max_distance_start=cfg.loop_max_distance_start,
+            max_distance_mid=cfg.loop_max_distance_mid,
         )
 
     def _close_loop(self, points: np.ndarray) -> bool:

@@ -142,6 +142,9 @@ class LoopClosure:
             their overconfident covariance).
         cooldown: after a fused match (:meth:`fused`), this many measurement updates
             pass before the next match is tried; 0: every one.
+        max_distance_start: the matcher's first correspondence distance [m] for the
+            revisit match (None: ``matcher``'s): a drift beyond it is not pulled in ...
+        max_distance_mid: ... and its distance [m] at the end of the coarse phase.
     """
 
     def __init__(
@@ -155,6 +158,8 @@ class LoopClosure:
         max_mahalanobis: float,
         sigma_floor: tuple[float, float, float] = (0.0, 0.0, 0.0),
         cooldown: int = 0,
+        max_distance_start: float | None = None,
+        max_distance_mid: float | None = None,
     ) -> None:
         config = replace(
             matcher,
@@ -162,6 +167,12 @@ class LoopClosure:
             keyframe_distance=keyframe_distance,
             keyframe_heading_deg=keyframe_heading_deg,
             on_ambiguity="decline",
+            max_distance_start=(
+                matcher.max_distance_start if max_distance_start is None else max_distance_start
+            ),
+            max_distance_mid=(
+                matcher.max_distance_mid if max_distance_mid is None else max_distance_mid
+            ),
         )
         self.keyframes = RevisitKeyframes(config, min_age)
         self.min_inlier_fraction = float(min_inlier_fraction)
