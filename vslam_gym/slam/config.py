@@ -622,11 +622,11 @@ class FilterConfig:
             Measured (``vslam-gym evaluate`` seeds 0-9, off -> on, position ATE /
             final error [m]): single_landmark 0.209 / 0.285 -> the same (no match
             passes), small 0.098 / 0.059 -> 0.097 / 0.019, curved 0.100 / 0.033 ->
-            0.099 / 0.020, ``house`` 0.242 / 0.480 -> 0.214 / 0.050 (seeds 10-19: 0.273
-            / 0.439 -> 0.264 / 0.229; 19 of 20 seeds within 0.26 m in each of three
-            round-off samples); full Radish logs (``logs`` preset, synthetic seeds 0-4
-            / logged odometry): Intel 0.61 / 0.73 -> 0.56 / 0.68, ACES 1.38 / 1.28 ->
-            0.93 / 1.30 (README, "Loop closure by revisits").
+            0.099 / 0.019, ``house`` 0.242 / 0.480 -> 0.214 / 0.051 (seeds 10-19: 0.273
+            / 0.439 -> 0.264 / 0.231; 18-19 of 20 seeds within 0.2 m in each of three
+            round-off samples, 7-8 without); full Radish logs (``logs`` preset,
+            synthetic seeds 0-4 / logged odometry): Intel 0.61 / 0.73 -> 0.58 / 0.68,
+            ACES 1.38 / 1.28 -> 0.94 / 1.30 (README, "Loop closure by revisits").
         loop_radius: see ``loop_closure`` [m]; > 0.
         loop_min_age: see ``loop_closure`` (measurement updates); >= 1.
         loop_keyframe_distance: see ``loop_closure`` [m]; >= 0.
@@ -637,12 +637,14 @@ class FilterConfig:
             distance [m] in the revisit match (``ScanMatcherConfig.max_distance_start``
             for this match only) ...
         loop_max_distance_mid: ... and its distance [m] at the end of the coarse phase
-            (``max_distance_mid``); both > 0. With the matcher's own 1 m / 0.5 m and
-            ``loop_max_mahalanobis`` 6, a drift of more than a metre before the revisit
-            is not pulled in: ``house``, three round-off samples of seeds 0-19, final
-            error 0.140 / 0.127 / 0.152 m with one seed of 20 at 1.5-1.85 m in each;
-            with 2 m / 1 m and 10 (the default) 0.097 / 0.060 / 0.079 m, seeds 0-9
-            0.051 / 0.059 / 0.059 m.
+            (``max_distance_mid``); both > 0. ``house``, three round-off samples of
+            seeds 0-19, final error [m]: with the matcher's own 1 m / 0.5 m, 0.140 /
+            0.127 / 0.152 (one seed of 20 at 1.5-1.85 m in each: more than a metre of
+            drift is not pulled in); with 2 m / 1 m (the default) 0.141 / 0.126 /
+            0.079. With 2 m / 1 m and ``loop_max_mahalanobis`` 10: 0.097 / 0.060 /
+            0.079, but false closures elsewhere (a wall matched 1.5 m along itself at
+            7.7 sigma in one of 20 random worlds, ``frontier`` ATE 0.115 -> 0.194 m;
+            ACES synthetic seed 0 2.75 m and logged 2.16 m): 6 by default.
         loop_sigma_floor: standard deviations ``(x [m], y [m], theta [rad])`` added in
             quadrature to a revisit match's noise; each >= 0. On the random worlds the
             match is fused on most steps and the pose grows overconfident (``frontier``,
@@ -711,7 +713,7 @@ class FilterConfig:
     loop_keyframe_distance: float = 0.5
     loop_keyframe_heading_deg: float = 15.0
     loop_min_inlier_fraction: float = 0.4
-    loop_max_mahalanobis: float = 10.0
+    loop_max_mahalanobis: float = 6.0
     loop_sigma_floor: tuple[float, float, float] = (0.0, 0.0, 0.0)
     loop_cooldown: int = 0
     loop_min_innovation: float = 0.0
