@@ -196,8 +196,8 @@ class SlamConfig:
         default's update verification (``verify_heading_sigma``). Measured (README,
         "Presets"): 2.5-3.5 times less CPU time per step than the default, at a larger
         position ATE. The default's loop closure by revisits (``loop_closure``) is on
-        here too (seeds 0-9, off -> on, final error: small 0.181 -> 0.036 m, curved
-        0.083 -> 0.043 m, ``house`` 0.681 -> 0.354 m; single_landmark unchanged).
+        here too (seeds 0-9, off -> on, final error: small 0.181 -> 0.034 m, curved
+        0.083 -> 0.047 m, ``house`` 0.681 -> 0.354 m; single_landmark unchanged).
         """
         return cls(
             filter=FilterConfig(
