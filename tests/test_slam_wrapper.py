@@ -267,6 +267,26 @@ def test_reset_starts_a_fresh_map_and_map_reset_scan_option():
     assert info["landmarks"] > 0 and obs["belief_map"][0].any()
 
 
+def test_info_reports_the_filters_loop_closures():
+    env = SlamWrapper(LidarWorldEnv(world="small"), slam_config={"filter": {"loop_min_age": 5}})
+    obs, info = env.reset(seed=0)
+    assert info["loop_closed"] is False
+    rng = np.random.default_rng(0)
+    closed = []
+    for _ in range(40):
+        action = np.array([0.3, rng.uniform(-1.0, 1.0)], dtype=np.float32)
+        obs, reward, terminated, truncated, info = env.step(action)
+        assert info["loop_closed"] == env.belief.loop_closed
+        closed.append(info["loop_closed"])
+        if terminated or truncated:
+            break
+    assert any(closed)  # keyframes 5 updates old are revisited at once
+    _, off = SlamWrapper(
+        LidarWorldEnv(world="small"), slam_config={"filter": {"loop_closure": False}}
+    ).reset(seed=0)
+    assert off["loop_closed"] is False
+
+
 def test_async_vector_env_of_a_registered_id():
     envs = gym.make_vec("VSlam/ExploreSmall-v0", num_envs=2, vectorization_mode="async")
     obs, _ = envs.reset(seed=[0, 1])

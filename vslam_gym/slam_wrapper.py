@@ -141,7 +141,8 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     |               |             | forward speed by the scan's free corridor             |
 
     ``info`` adds ``slam_pose`` and ``slam_pose_cov`` (the robot pose belief, world
-    frame), ``landmarks``, ``rewards``, ``env_reward`` and, with a shield,
+    frame), ``landmarks``, ``loop_closed`` (the filter fused a revisit match this step,
+    ``FilterConfig.loop_closure``), ``rewards``, ``env_reward`` and, with a shield,
     ``executed_action`` and ``shielded`` to the
     wrapped environment's keys, which hold ground truth (``pose``, ``hit_ids``):
     for metrics only, never part of the observation or the reward. The filter's wall
@@ -310,6 +311,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         info["slam_pose"] = belief.robot_pose.copy()
         info["slam_pose_cov"] = belief.pose_cov.copy()
         info["landmarks"] = len(belief.landmarks)
+        info["loop_closed"] = bool(belief.loop_closed)
         info["rewards"] = rewards
         info["env_reward"] = env_reward
         return info
