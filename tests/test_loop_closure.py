@@ -52,6 +52,8 @@ def test_revisit_keyframes_are_the_old_ones_near_the_position():
     assert keyframes.reference(np.array([5.0, 0.0, 0.0])) is None
     keyframes.clear()
     assert keyframes.stored == 0 and keyframes._select(near) == ()
+    with pytest.raises(ValueError, match="revisit_radius"):
+        RevisitKeyframes(ScanMatcherConfig(), min_age=30)  # radius 0: no old keyframes kept
 
 
 def _closure(**overrides):

@@ -55,6 +55,9 @@ class RevisitKeyframes(LocalMap):
     """
 
     def __init__(self, config: ScanMatcherConfig, min_age: int) -> None:
+        if not config.revisit_radius > 0:
+            # LocalMap drops old keyframes without a revisit radius; stamps would shift.
+            raise ValueError(f"revisit_radius must be > 0, got {config.revisit_radius!r}")
         super().__init__(config)
         self.min_age = int(min_age)
         self.now = 0  # the current measurement update
