@@ -722,36 +722,22 @@ class FilterConfig:
     loop_max_distance_mid: float = 1.0
 
     def __post_init__(self) -> None:
-        floor = np.asarray(self.icp_gate_sigma_floor, dtype=float)
-        if floor.shape != (3,) or not np.all(np.isfinite(floor)) or np.any(floor < 0):
-            raise ValueError(
-                "FilterConfig.icp_gate_sigma_floor must be 3 finite numbers >= 0, got "
-                f"{self.icp_gate_sigma_floor!r}"
-            )
-        # A frozen config stays hashable when built from JSON lists.
-        object.__setattr__(self, "icp_gate_sigma_floor", tuple(float(v) for v in floor))
-        loop_floor = np.asarray(self.loop_sigma_floor, dtype=float)
-        if (
-            loop_floor.shape != (3,)
-            or not np.all(np.isfinite(loop_floor))
-            or np.any(loop_floor < 0)
+        for name in ("icp_gate_sigma_floor", "loop_sigma_floor"):
+            self._sigma_triple(name)
+        for name in (
+            "icp_retry_min_fraction",
+            "min_object_beam_fraction",
+            "loop_min_inlier_fraction",
         ):
-            raise ValueError(
-                "FilterConfig.loop_sigma_floor must be 3 finite numbers >= 0, got "
-                f"{self.loop_sigma_floor!r}"
-            )
-        object.__setattr__(self, "loop_sigma_floor", tuple(float(v) for v in loop_floor))
-        if not 0.0 <= self.icp_retry_min_fraction <= 1.0:
-            raise ValueError(
-                "FilterConfig.icp_retry_min_fraction must lie in [0, 1], got "
-                f"{self.icp_retry_min_fraction!r}"
-            )
-        if not 0.0 <= self.min_object_beam_fraction <= 1.0:
-            raise ValueError(
-                "FilterConfig.min_object_beam_fraction must lie in [0, 1], got "
-                f"{self.min_object_beam_fraction!r}"
-            )
-        for name in ("measurement_min_travel", "measurement_min_turn"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"FilterConfig.{name} must lie in [0, 1], got {value!r}")
+        for name in (
+            "measurement_min_travel",
+            "measurement_min_turn",
+            "loop_keyframe_distance",
+            "loop_keyframe_heading_deg",
+        ):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"FilterConfig.{name} must be finite and >= 0, got {value!r}")
@@ -771,24 +757,9 @@ class FilterConfig:
             value = getattr(self, name)
             if not value >= 0.0:  # NaN fails too
                 raise ValueError(f"FilterConfig.{name} must be >= 0, got {value!r}")
-        if not 0.0 < self.prune_covered_fraction <= 1.0:
-            raise ValueError(
-                "FilterConfig.prune_covered_fraction must lie in (0, 1], got "
-                f"{self.prune_covered_fraction!r}"
-            )
-        if not (np.isfinite(self.prune_merge_max_offset) and self.prune_merge_max_offset > 0):
-            raise ValueError(
-                "FilterConfig.prune_merge_max_offset must be finite and > 0, got "
-                f"{self.prune_merge_max_offset!r}"
-            )
-        if not 0.0 < self.prune_merge_probability < 1.0:
-            raise ValueError(
-                "FilterConfig.prune_merge_probability must lie in (0, 1), got "
-                f"{self.prune_merge_probability!r}"
-            )
-        if not isinstance(self.loop_closure, bool):
-            raise ValueError(f"FilterConfig.loop_closure must be a bool, got {self.loop_closure!r}")
         for name in (
+            "prune_merge_max_offset",
+            "reference_heading_sigma",
             "loop_radius",
             "loop_max_mahalanobis",
             "loop_max_distance_start",
@@ -797,29 +768,26 @@ class FilterConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0.0):
                 raise ValueError(f"FilterConfig.{name} must be finite and > 0, got {value!r}")
-        for name in ("loop_keyframe_distance", "loop_keyframe_heading_deg"):
+        if not 0.0 < self.prune_covered_fraction <= 1.0:
+            raise ValueError(
+                "FilterConfig.prune_covered_fraction must lie in (0, 1], got "
+                f"{self.prune_covered_fraction!r}"
+            )
+        if not 0.0 < self.prune_merge_probability < 1.0:
+            raise ValueError(
+                "FilterConfig.prune_merge_probability must lie in (0, 1), got "
+                f"{self.prune_merge_probability!r}"
+            )
+        for name in ("prune_merge", "loop_closure"):
             value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"FilterConfig.{name} must be finite and >= 0, got {value!r}")
-        if not 0.0 <= self.loop_min_inlier_fraction <= 1.0:
-            raise ValueError(
-                "FilterConfig.loop_min_inlier_fraction must lie in [0, 1], got "
-                f"{self.loop_min_inlier_fraction!r}"
-            )
-        age = self.loop_min_age
-        if isinstance(age, bool) or not isinstance(age, int) or age < 1:
-            raise ValueError(f"FilterConfig.loop_min_age must be an integer >= 1, got {age!r}")
-        cool = self.loop_cooldown
-        if isinstance(cool, bool) or not isinstance(cool, int) or cool < 0:
-            raise ValueError(f"FilterConfig.loop_cooldown must be an integer >= 0, got {cool!r}")
-        if not isinstance(self.prune_merge, bool):
-            raise ValueError(f"FilterConfig.prune_merge must be a bool, got {self.prune_merge!r}")
-        steps = self.prune_idle_steps
-        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-            raise ValueError(
-                f"FilterConfig.prune_idle_steps must be an integer >= 1, got "
-                f"{self.prune_idle_steps!r}"
-            )
+            if not isinstance(value, bool):
+                raise ValueError(f"FilterConfig.{name} must be a bool, got {value!r}")
+        for name, minimum in (("prune_idle_steps", 1), ("loop_min_age", 1), ("loop_cooldown", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+                raise ValueError(
+                    f"FilterConfig.{name} must be an integer >= {minimum}, got {value!r}"
+                )
         if self.new_landmark not in NEW_LANDMARKS:
             raise ValueError(
                 f"FilterConfig.new_landmark must be one of {NEW_LANDMARKS}, got "
@@ -828,11 +796,6 @@ class FilterConfig:
         if self.reference not in REFERENCES:
             raise ValueError(
                 f"FilterConfig.reference must be one of {REFERENCES}, got {self.reference!r}"
-            )
-        if not (np.isfinite(self.reference_heading_sigma) and self.reference_heading_sigma > 0):
-            raise ValueError(
-                "FilterConfig.reference_heading_sigma must be finite and > 0, got "
-                f"{self.reference_heading_sigma!r}"
             )
         if self.association_pose not in ASSOCIATION_POSES:
             raise ValueError(
@@ -843,6 +806,15 @@ class FilterConfig:
             raise ValueError(
                 f"FilterConfig.prealign must be one of {PREALIGN_MODES}, got {self.prealign!r}"
             )
+
+    def _sigma_triple(self, name: str) -> None:
+        """Check 3 finite standard deviations >= 0 and store them as a tuple (hashable)."""
+        value = getattr(self, name)
+        floor = np.asarray(value, dtype=float)
+        if floor.shape != (3,) or not np.all(np.isfinite(floor)) or np.any(floor < 0):
+            raise ValueError(f"FilterConfig.{name} must be 3 finite numbers >= 0, got {value!r}")
+        # A frozen config stays hashable when built from JSON lists.
+        object.__setattr__(self, name, tuple(float(v) for v in floor))
 
     @classmethod
     def thesis(cls, **overrides: Any) -> FilterConfig:
