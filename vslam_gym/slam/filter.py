@@ -601,7 +601,7 @@ class VertexSLAM:
         """The motion and measurement updates of :meth:`step` on validated inputs."""
         mode = self.config.filter.prealign
         points = None  # the scan's lidar-frame points, for the whole-scan matcher
-        if mode != "none" or self._loop is not None:
+        if mode != "none":
             points = scan_points(scan.ranges, scan.bearings, scan.max_range)
         if mode == "none":
             self._motion_update(u)
@@ -618,6 +618,8 @@ class VertexSLAM:
         if self._measured:
             self._measurements += 1
             if self._loop is not None:
+                if points is None:  # only steps that measure need them
+                    points = scan_points(scan.ranges, scan.bearings, scan.max_range)
                 self._loop_closed = self._close_loop(points)
             self._decisions = tuple(self._measurement_update(scan))
             self._refresh_models()

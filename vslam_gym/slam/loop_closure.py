@@ -36,7 +36,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.scan_matching import LocalMap, MatchResult, ScanMatcherConfig, match_scan
@@ -94,14 +93,6 @@ class RevisitKeyframes(LocalMap):
         order = np.argsort(dist, kind="stable")
         close = old[order[dist[order] <= self.config.revisit_radius]]
         return tuple(sorted(close[: self.config.revisit_max_keyframes].tolist()))
-
-    def reference(
-        self, near: np.ndarray | None = None
-    ) -> tuple[cKDTree, np.ndarray, np.ndarray] | None:
-        """``(tree, points, normals)`` of the old keyframes near ``near``, or None."""
-        if not self._select(near):
-            return None
-        return super().reference(near)
 
     def selected_covariance(self) -> np.ndarray:
         """Mean pose covariance ``(3, 3)`` of the keyframes of the last reference."""

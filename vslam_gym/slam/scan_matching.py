@@ -425,13 +425,15 @@ class LocalMap:
     ) -> tuple[cKDTree, np.ndarray, np.ndarray] | None:
         """``(tree, points (N, 2), normals (N, 2))`` of the selected keyframes, or None.
 
+        None when no keyframe is selected (an empty map, or a subclass's selection).
+
         Args:
             near: ``(>=2,)`` map position [m] around which older keyframes are selected
                 (``revisit_radius``); None: the last ``keyframes`` only.
         """
-        if not self._points:
-            return None
         selection = self._select(near)
+        if not selection:
+            return None
         if self._reference is None or selection != self._selection:
             pts = np.concatenate([self._points[i] for i in selection])
             nrm = np.concatenate([self._normals[i] for i in selection])
