@@ -175,12 +175,6 @@ class LoopClosure:
         self.cooldown = int(cooldown)
         self._last_fused: int | None = None
 
-    def reset(self) -> None:
-        """Forget every keyframe."""
-        self.keyframes.clear()
-        self.keyframes.now = 0
-        self._last_fused = None
-
     def fused(self, now: int) -> None:
         """Record that the match of measurement update ``now`` was fused (cooldown)."""
         self._last_fused = int(now)
