@@ -54,6 +54,7 @@ from agents.scripted import SCRIPTED_AGENTS, Agent, make_agent  # noqa: E402
 from vslam_gym.evaluation import (  # noqa: E402
     json_safe,
     machine_description,
+    name_or_mapping,
     pose_nees,
     position_ate_rmse,
     progress_bar,
@@ -512,6 +513,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--slam-config",
         default=None,
+        type=name_or_mapping,
         help="SLAM preset name or JSON mapping over it (default: the registration's), "
         'e.g. \'{"filter": {"loop_closure": false}}\'',
     )
@@ -522,10 +524,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the evaluation, write the files, print the table."""
     args = build_parser().parse_args(argv)
-    slam = args.slam_config
     try:
-        if slam is not None and slam.lstrip().startswith("{"):
-            slam = json.loads(slam)
         result = evaluate_agent(
             args.agent,
             env_id=args.env,
@@ -537,7 +536,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             progress=not args.no_progress,
             reward=args.reward,
             shield=args.shield,
-            slam_config=slam,
+            slam_config=args.slam_config,
         )
     except (ValueError, gym.error.Error) as err:
         print(f"error: {err}", file=sys.stderr)

@@ -40,6 +40,7 @@ if __package__ in (None, ""):  # run as a script: make the repository root impor
 import gymnasium as gym  # noqa: E402
 
 import vslam_gym  # noqa: E402
+from vslam_gym.evaluation import name_or_mapping  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -289,6 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--reward",
         default=None,
+        type=name_or_mapping,
         help="reward preset (default|d_opt|coverage) or JSON weights, e.g. '{\"collision\": 10}'",
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
@@ -327,11 +329,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     reward = args.reward
-    if reward is not None and reward.lstrip().startswith("{"):
-        try:
-            reward = json.loads(reward)
-        except json.JSONDecodeError as err:
-            parser.error(f"--reward is neither a preset name nor valid JSON: {err}")
     settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
     path = train(
         args.env,

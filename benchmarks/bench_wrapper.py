@@ -23,7 +23,6 @@ the distance the robot drove.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 
@@ -31,7 +30,7 @@ import gymnasium as gym
 import numpy as np
 
 import vslam_gym
-from vslam_gym.evaluation import machine_description
+from vslam_gym.evaluation import machine_description, name_or_mapping
 
 RESET_TARGET_MS = 10.0
 """Target median reset time [ms]."""
@@ -110,11 +109,11 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--resets", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--slam-config", default="default", help="preset name or JSON mapping")
+    parser.add_argument(
+        "--slam-config", default="default", type=name_or_mapping, help="preset name or JSON mapping"
+    )
     args = parser.parse_args()
     slam_config = args.slam_config
-    if slam_config.lstrip().startswith("{"):
-        slam_config = json.loads(slam_config)
     print(f"machine: {machine_description()}; load average {os.getloadavg()[0]:.2f}")
     print(f"slam_config: {args.slam_config}")
     header = (

@@ -25,6 +25,7 @@ from vslam_gym.evaluation import (
     majority_id,
     mean_metrics,
     mean_nees_interval,
+    name_or_mapping,
     nees_summary,
     odometry_covariances,
     parse_seeds,
@@ -515,3 +516,12 @@ def test_odometry_covariance_matches_monte_carlo_dead_reckoning():
         finals, np.repeat(covs[-1][None], len(finals), axis=0), np.tile(true[-1], (len(finals), 1))
     )
     assert 2.7 < nees.mean() < 3.4
+
+
+def test_name_or_mapping_parses_json_objects_and_keeps_names():
+    assert name_or_mapping("fast") == "fast"
+    assert name_or_mapping(' {"filter": {"loop_closure": false}}') == {
+        "filter": {"loop_closure": False}
+    }
+    with pytest.raises(argparse.ArgumentTypeError, match="valid JSON"):
+        name_or_mapping('{"filter": ')

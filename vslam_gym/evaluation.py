@@ -70,6 +70,7 @@ __all__ = [
     "landmark_majority_ids",
     "machine_description",
     "majority_id",
+    "name_or_mapping",
     "mean_nees_interval",
     "nees_summary",
     "parse_seeds",
@@ -1170,6 +1171,22 @@ def _seeds_argument(text: str) -> list[int]:
         return parse_seeds(text)
     except SeedsError as err:
         raise argparse.ArgumentTypeError(str(err)) from err
+
+
+def name_or_mapping(text: str) -> str | dict[str, Any]:
+    """An argparse type for an option that takes a preset name or a JSON object.
+
+    ``"fast"`` stays a name; text starting with ``{`` is parsed as a JSON object (e.g.
+    ``'{"filter": {"loop_closure": false}}'`` for a wrapper's ``slam_config``, or
+    reward weights). Malformed JSON raises ``argparse.ArgumentTypeError`` (a usage
+    error naming it).
+    """
+    if not text.lstrip().startswith("{"):
+        return text
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"neither a preset name nor valid JSON: {exc}") from None
 
 
 def _overrides_argument(text: str) -> dict[str, Any]:
