@@ -8,8 +8,9 @@ from _raycast import bearings_deg, cast, polygon_edges
 
 from vslam_gym.config_utils import UnknownKeyError
 from vslam_gym.slam.config import SensorConfig
-from vslam_gym.slam.filter import SlamConfig, VertexSLAM, _median_distances
+from vslam_gym.slam.filter import SlamConfig, VertexSLAM, _median_distances, _near_candidates
 from vslam_gym.slam.icp import line_geometry, object_radius
+from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.motion import increments_between, predict_pose
 from vslam_gym.slam.scan import ScanError
 
@@ -144,6 +145,26 @@ def test_cached_models_radii_and_median_distances_match_plain_computations():
         got = _median_distances(pts, geometry)
         want = [reference_median_distance(pts, m) for m in models]
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_near_candidates_keep_a_partly_overlapping_set_and_drop_a_parallel_one():
+    wall = line_geometry(LandmarkModel(np.array([(0.0, 0.0), (2.0, 0.0)]), np.eye(4), np.zeros(1)))
+    x = np.linspace(1.0, 4.0, 31)
+    extending = np.column_stack([x, np.full_like(x, 0.02)])  # a third on the wall, then past it
+    parallel = np.column_stack([x - 2.0, np.full_like(x, 0.3)])  # 0.3 m beside it
+    default = SlamConfig().filter
+    assert default.candidate_max_near_distance == np.inf  # off: the median test alone
+    assert _near_candidates(extending, [wall], default).tolist() == [True]
+    assert _near_candidates(parallel, [wall], default).tolist() == [True]
+    near = SlamConfig.from_dict({"filter": {"candidate_max_near_distance": 0.1}}).filter
+    assert _near_candidates(extending, [wall], near).tolist() == [True]
+    assert _near_candidates(parallel, [wall], near).tolist() == [False]
+    # a median test as tight would drop the extending set too (its median point is 0.5 m off)
+    tight = SlamConfig.from_dict({"filter": {"candidate_max_median_distance": 0.1}}).filter
+    assert _near_candidates(extending, [wall], tight).tolist() == [False]
+    for bad in ({"candidate_max_near_distance": -0.1}, {"candidate_near_quantile": 1.5}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            SlamConfig.from_dict({"filter": bad})
 
 
 def reference_median_distance(points, model):

@@ -348,6 +348,13 @@ class FilterConfig:
             pose, to its nearest model lines is at most this; ``inf`` (the thesis)
             tries every landmark near the reference. A speed measure: most candidates
             of a cluttered scene are far from the set.
+        candidate_max_near_distance: ... and only when the set's nearest points lie
+            near it: the ``candidate_near_quantile`` quantile of the points' distances
+            [m] to the model's segments, at the predicted pose, is at most this (a set
+            that overlaps the model only partly still has its nearest points on it).
+            ``inf`` (the thesis) does not test.
+        candidate_near_quantile: the quantile of ``candidate_max_near_distance``, in
+            [0, 1].
         new_landmark: how a new landmark enters the state: ``"thesis"`` (4.3.59-4.3.62:
             ``Phi2`` and ``Phi3`` both with ``K_v = Sigma_v^-1``, which counts the scan
             twice and informs the heading) or ``"augment"`` (exact augmentation of the
@@ -680,6 +687,8 @@ class FilterConfig:
     icp_gate_includes_reference: bool = False
     association_pose: str = "icp"
     candidate_max_median_distance: float = 1.5
+    candidate_max_near_distance: float = float("inf")
+    candidate_near_quantile: float = 0.1
     new_landmark: str = "thesis"
     shape_sigma: float = 1e-3
     reference: str = "point"
@@ -728,6 +737,7 @@ class FilterConfig:
             "icp_retry_min_fraction",
             "min_object_beam_fraction",
             "loop_min_inlier_fraction",
+            "candidate_near_quantile",
         ):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
@@ -753,6 +763,7 @@ class FilterConfig:
             "observation_model_sigma",
             "observation_model_heading_sigma",
             "loop_min_innovation",
+            "candidate_max_near_distance",
         ):
             value = getattr(self, name)
             if not value >= 0.0:  # NaN fails too

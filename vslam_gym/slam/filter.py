@@ -813,11 +813,7 @@ class VertexSLAM:
             return None
         lms = [self._landmarks[i] for i in cand]
         geometry = [self._geometry(lm) for lm in lms]
-        max_dist = self.config.filter.candidate_max_median_distance
-        if np.isfinite(max_dist):
-            near = _median_distances(pts, geometry) <= max_dist
-        else:
-            near = np.ones(len(lms), dtype=bool)
+        near = _near_candidates(pts, geometry, self.config.filter)
         return _SetWork(first, last, pts, lms, geometry, np.flatnonzero(near))
 
     def _pose_gate(self) -> _PoseGate:
@@ -1638,6 +1634,27 @@ def _predicted_result(pose: np.ndarray, n_points: int) -> IcpResult:
 
 _MIN_LENGTH2 = 1e-12
 """Squared length [m^2] below which a line counts as a point (median distance)."""
+
+
+def _near_candidates(
+    points: np.ndarray, geometry: list[LineGeometry], cfg: FilterConfig
+) -> np.ndarray:
+    """``(len(geometry),)`` bool: which candidate models a set is aligned to (not "far").
+
+    ``points``: ``(n, 2)`` the set at the predicted pose [m, world frame]. A model is
+    near when the median of the points' distances to its segments is at most
+    ``cfg.candidate_max_median_distance`` and their ``cfg.candidate_near_quantile``
+    quantile at most ``cfg.candidate_max_near_distance`` (``inf``: no test).
+    """
+    near = np.ones(len(geometry), dtype=bool)
+    max_median, max_near = cfg.candidate_max_median_distance, cfg.candidate_max_near_distance
+    if np.isfinite(max_median) or np.isfinite(max_near):
+        dist = _segment_distances(points, geometry)
+        if np.isfinite(max_median):
+            near &= np.median(dist, axis=1) <= max_median
+        if np.isfinite(max_near):
+            near &= np.quantile(dist, cfg.candidate_near_quantile, axis=1) <= max_near
+    return near
 
 
 def _median_distances(points: np.ndarray, geometry: list[LineGeometry]) -> np.ndarray:
