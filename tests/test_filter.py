@@ -152,17 +152,23 @@ def test_near_candidates_keep_a_partly_overlapping_set_and_drop_a_parallel_one()
     x = np.linspace(1.0, 4.0, 31)
     extending = np.column_stack([x, np.full_like(x, 0.02)])  # a third on the wall, then past it
     parallel = np.column_stack([x - 2.0, np.full_like(x, 0.3)])  # 0.3 m beside it
-    default = SlamConfig().filter
-    assert default.candidate_max_near_distance == np.inf  # off: the median test alone
-    assert _near_candidates(extending, [wall], default).tolist() == [True]
-    assert _near_candidates(parallel, [wall], default).tolist() == [True]
-    near = SlamConfig.from_dict({"filter": {"candidate_max_near_distance": 0.1}}).filter
-    assert _near_candidates(extending, [wall], near).tolist() == [True]
-    assert _near_candidates(parallel, [wall], near).tolist() == [False]
+    thesis = SlamConfig.thesis().filter
+    assert thesis.candidate_max_near_distance == thesis.candidate_max_median_distance == np.inf
+    assert SlamConfig().filter.candidate_max_near_distance == 0.1
+
+    def near(points, max_median=1.5, max_near=0.1):
+        return _near_candidates(points, [wall], max_median, max_near, 0.1).tolist()
+
+    assert near(extending) == [True] and near(parallel) == [False]
+    assert near(parallel, max_near=0.35) == [True]  # a wider reach (pose uncertainty)
+    assert near(parallel, max_near=np.inf) == [True]  # the thesis: no test
     # a median test as tight would drop the extending set too (its median point is 0.5 m off)
-    tight = SlamConfig.from_dict({"filter": {"candidate_max_median_distance": 0.1}}).filter
-    assert _near_candidates(extending, [wall], tight).tolist() == [False]
-    for bad in ({"candidate_max_near_distance": -0.1}, {"candidate_near_quantile": 1.5}):
+    assert near(extending, max_median=0.1, max_near=np.inf) == [False]
+    for bad in (
+        {"candidate_max_near_distance": -0.1},
+        {"candidate_near_quantile": 1.5},
+        {"candidate_near_sigma": float("inf")},
+    ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             SlamConfig.from_dict({"filter": bad})
 

@@ -177,6 +177,10 @@ class SlamConfig:
                 # ACES 1.43 / 1.31, 1.33 / 1.42, 1.39 / 1.45).
                 observation_model_sigma=0.0,
                 observation_model_heading_sigma=0.0,
+                # Measured worse here (logged odometry, position ATE: 0.1 m, no sigma
+                # term: Intel 0.68 -> 0.72 m, ACES 1.30 -> 1.44 m; 0.2 m: 0.65 / 1.25 m,
+                # but 1.5-2 times the landmarks).
+                candidate_max_near_distance=float("inf"),
             ),
             # No freeze_on_cycle: measured no better here (full logs, seeds 0-4, position
             # ATE mean: Intel 0.61 -> 0.59 m, ACES 1.36 -> 1.44 m; step time unchanged).
@@ -212,6 +216,9 @@ class SlamConfig:
                 # ATE single_landmark / small / curved / house 0.262 / 0.209 / 0.207 /
                 # 0.639 -> 0.251 / 0.213 / 0.170 / 0.510 m, final error better on every
                 # world (the floor alone: small 0.302 m, t +2.7).
+                # Measured worse here (seeds 0-9, inf -> 0.1 m with 3 sigma: house ATE
+                # 0.436 -> 0.550 m, final error 0.354 -> 0.829 m, the others level).
+                candidate_max_near_distance=float("inf"),
             )
         )
 
@@ -799,22 +806,46 @@ class VertexSLAM:
         return self._mu[POSE_DIM : POSE_DIM + d * n].reshape(n, d).copy()
 
     def _candidates(
-        self, scan: Scan, first: int, last: int, refs: np.ndarray, radii: np.ndarray
+        self,
+        scan: Scan,
+        first: int,
+        last: int,
+        refs: np.ndarray,
+        radii: np.ndarray,
+        pose_spread: tuple[float, float],
     ) -> _SetWork | None:
-        """Candidate landmarks of a set and which of them are near enough to align."""
+        """Candidate landmarks of a set and which of them are near enough to align.
+
+        ``pose_spread``: :meth:`_pose_spread` of the predicted pose.
+        """
         if not self._landmarks:
             return None
         pose = self._mu[:3]
+        cfg = self.config.filter
         pts = self._set_points(scan, first, last, pose)
-        cand = candidate_landmarks(
-            pts.mean(axis=0), refs[:, :REF_DIM], radii, self.config.filter.candidate_margin
-        )
+        centroid = pts.mean(axis=0)
+        cand = candidate_landmarks(centroid, refs[:, :REF_DIM], radii, cfg.candidate_margin)
         if cand.size == 0:
             return None
         lms = [self._landmarks[i] for i in cand]
         geometry = [self._geometry(lm) for lm in lms]
-        near = _near_candidates(pts, geometry, self.config.filter)
+        # the near distance grows with how far the pose's uncertainty may move the set
+        reach = float(np.hypot(*(centroid - pose[:2])))
+        max_near = cfg.candidate_max_near_distance + cfg.candidate_near_sigma * (
+            pose_spread[0] + reach * pose_spread[1]
+        )
+        near = _near_candidates(
+            pts, geometry, cfg.candidate_max_median_distance, max_near, cfg.candidate_near_quantile
+        )
         return _SetWork(first, last, pts, lms, geometry, np.flatnonzero(near))
+
+    def _pose_spread(self) -> tuple[float, float]:
+        """``(position, heading)`` standard deviations of the pose [m, rad].
+
+        The position's is along the major axis of its covariance.
+        """
+        position = float(np.sqrt(max(np.linalg.eigvalsh(self._sigma[:2, :2])[-1], 0.0)))
+        return position, float(np.sqrt(max(self._sigma[2, 2], 0.0)))
 
     def _pose_gate(self) -> _PoseGate:
         """What the plausibility of every ICP pose of a scan is judged by (current state)."""
@@ -1063,11 +1094,12 @@ class VertexSLAM:
         works: list[tuple[int, int, _SetWork | None]] = []
         refs = self._refs()
         radii = np.array([lm.radius for lm in self._landmarks])
+        spread = self._pose_spread()
         for first, last in sets:
             if not self._informative(scan, first, last, self._mu[:3]):
                 decisions.append(SetDecision(first, last, "skipped"))
                 continue
-            works.append((first, last, self._candidates(scan, first, last, refs, radii)))
+            works.append((first, last, self._candidates(scan, first, last, refs, radii, spread)))
         pairs = [(w, c) for _, _, w in works if w is not None for c in w.aligned]
         results, known = self._alignments(scan, works, pairs, lam)
         # The ICP gate of every set, then one detection call for all sets' candidates
@@ -1637,23 +1669,26 @@ _MIN_LENGTH2 = 1e-12
 
 
 def _near_candidates(
-    points: np.ndarray, geometry: list[LineGeometry], cfg: FilterConfig
+    points: np.ndarray,
+    geometry: list[LineGeometry],
+    max_median: float,
+    max_near: float,
+    near_quantile: float,
 ) -> np.ndarray:
     """``(len(geometry),)`` bool: which candidate models a set is aligned to (not "far").
 
     ``points``: ``(n, 2)`` the set at the predicted pose [m, world frame]. A model is
-    near when the median of the points' distances to its segments is at most
-    ``cfg.candidate_max_median_distance`` and their ``cfg.candidate_near_quantile``
-    quantile at most ``cfg.candidate_max_near_distance`` (``inf``: no test).
+    near when the median of the points' distances [m] to its segments is at most
+    ``max_median`` and their ``near_quantile`` quantile at most ``max_near`` (``inf``:
+    no test).
     """
     near = np.ones(len(geometry), dtype=bool)
-    max_median, max_near = cfg.candidate_max_median_distance, cfg.candidate_max_near_distance
     if np.isfinite(max_median) or np.isfinite(max_near):
         dist = _segment_distances(points, geometry)
         if np.isfinite(max_median):
             near &= np.median(dist, axis=1) <= max_median
         if np.isfinite(max_near):
-            near &= np.quantile(dist, cfg.candidate_near_quantile, axis=1) <= max_near
+            near &= np.quantile(dist, near_quantile, axis=1) <= max_near
     return near
 
 
