@@ -173,6 +173,19 @@ def test_near_candidates_keep_a_partly_overlapping_set_and_drop_a_parallel_one()
             SlamConfig.from_dict({"filter": bad})
 
 
+def test_near_distance_widens_with_the_pose_uncertainty_to_close_the_loop():
+    # Around the circle the pose drifts 0.15-0.2 m (about 3-4 of its sigmas) before the
+    # first objects come back: at a fixed 0.1 m their sets are not candidates of their
+    # landmarks any more and model them again, and the loop stays open.
+    fixed = SlamConfig.from_dict({"filter": {"candidate_near_sigma": 0.0}})
+    _, beliefs_fixed, _, true = run(fixed)
+    _, beliefs, _, _ = run(SlamConfig())
+    err_fixed = np.hypot(*(beliefs_fixed[-1].pose[:2] - true[-1, :2]))
+    err = np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2]))
+    assert len(beliefs_fixed[-1].landmarks) > len(beliefs[-1].landmarks)
+    assert err_fixed > 2.0 * err and err < 0.15, (err_fixed, err)
+
+
 def reference_median_distance(points, model):
     """Median over points of the distance to the nearest line segment (plain loops)."""
     idx = model.line_vertices()
