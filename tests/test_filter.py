@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from _raycast import bearings_deg, cast, polygon_edges
@@ -273,6 +275,13 @@ def test_icp_gate_floor_rejects_gross_corrections_and_keeps_plausible_ones():
 def test_min_object_beam_fraction_is_validated_and_off_in_the_thesis():
     thesis = SlamConfig.thesis().filter
     assert thesis.min_object_beam_fraction == 0.0
+    assert SlamConfig().filter.min_object_beam_fraction == 0.3
+    # a set with 2 of its 10 beams on object lines (u = 0) and 8 on unknown lines (u = 1)
+    detection = SimpleNamespace(association=SimpleNamespace(u=np.r_[np.ones(8), np.zeros(2)]))
+    assert not VertexSLAM(SENSOR, SlamConfig())._enough_object_beams(detection)
+    assert VertexSLAM(SENSOR, SlamConfig.thesis())._enough_object_beams(detection)
+    detection.association.u = np.r_[np.ones(7), np.zeros(3)]  # 3 of 10: enough
+    assert VertexSLAM(SENSOR, SlamConfig())._enough_object_beams(detection)
     assert thesis.icp_max_pose_mahalanobis == float("inf") and not thesis.icp_gate_fallback
     with pytest.raises(ValueError, match="min_object_beam_fraction"):
         SlamConfig.from_dict({"filter": {"min_object_beam_fraction": 1.5}})
