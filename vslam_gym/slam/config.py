@@ -478,7 +478,7 @@ class FilterConfig:
             on"), 0.3 measured better on ``house`` (position ATE 0.221-0.236 ->
             0.208-0.217 m, final error 0.063-0.154 -> 0.053-0.069 m, precision 0.80 ->
             0.87) and on the ``curved`` precision (0.994 -> 1.000), level elsewhere:
-            0.3 by default.
+            0.3 by default; 0 in the ``logs`` preset (ACES measured worse).
         prealign: whole-scan alignment before the landmark association
             (:mod:`vslam_gym.slam.scan_matching`; not in the thesis, its future work):
             ``"none"`` (the thesis); ``"odometry"``: the scan is aligned to the last
