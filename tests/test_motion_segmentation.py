@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from vslam_gym.slam.config import SensorConfig
+from vslam_gym.slam.filter import SlamConfig
 from vslam_gym.slam.motion import (
     compose,
     increments_between,
@@ -69,6 +70,36 @@ def test_segmentation_angular_threshold():
     scan = Scan.from_arrays(np.full(19, 0.5), phi, SensorConfig(resolution_deg=10.0))
     assert len(segment_scan(scan, np.deg2rad(5.0), 1.0)) == 19
     assert segment_scan(scan, np.deg2rad(20.0), 1.0) == [(0, 18)]
+
+
+def _ranges_to_line(point, normal):
+    """Ranges along PHI to the infinite line through ``point`` with unit ``normal``."""
+    d = np.stack([np.cos(PHI), np.sin(PHI)], axis=1)
+    along = d @ np.asarray(normal)
+    with np.errstate(divide="ignore"):
+        r = (np.asarray(point) @ np.asarray(normal)) / along
+    return np.where((along > 0) & (r > 0), r, np.inf)
+
+
+def test_adaptive_breakpoint_splits_a_depth_jump_and_keeps_a_grazing_wall():
+    # a box face 2 m ahead (beams 80-100) in front of a wall 2.6 m ahead: 0.6 m jumps
+    r = np.minimum(_ranges_to_line((2.6, 0.0), (1.0, 0.0)), 30.0)
+    r[80:101] = 2.0 / np.cos(PHI[80:101])
+    scan = Scan.from_arrays(r, PHI, SENSOR)
+    fixed = segment_scan(scan, 2 * SENSOR.phi_res, 1.0)
+    adaptive = segment_scan(scan, 2 * SENSOR.phi_res, 1.0, np.deg2rad(10.0), 0.03)
+    assert (80, 100) not in fixed and (80, 100) in adaptive
+    assert len(adaptive) == len(fixed) + 2
+    # a wall 1 m to the left, seen from 90 down to 12 degrees off the beams (beams 0-78,
+    # points up to 0.4 m apart): one set either way
+    wall = np.minimum(_ranges_to_line((0.0, 1.0), (0.0, 1.0)), 30.0)
+    wall[wall > 1.0 / np.sin(np.deg2rad(12.0))] = 30.0
+    scan = Scan.from_arrays(wall, PHI, SENSOR)
+    assert segment_scan(scan, 2 * SENSOR.phi_res, 1.0, np.deg2rad(10.0), 0.03) == [(0, 78)]
+    assert segment_scan(scan, 2 * SENSOR.phi_res, 1.0) == [(0, 78)]
+    for bad in (90.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="segment_breakpoint_angle_deg"):
+            SlamConfig.from_dict({"filter": {"segment_breakpoint_angle_deg": bad}})
 
 
 def test_bad_increments():

@@ -283,6 +283,11 @@ class FilterConfig:
         segment_angle_gap: largest bearing difference of two linked beams, in angular
             resolutions (thesis: 2).
         segment_distance_gap: largest distance [m] of two linked points (thesis: 1).
+        segment_breakpoint_angle_deg: ``lambda`` [deg] of an adaptive breakpoint
+            detector on top (:func:`~vslam_gym.slam.segmentation.segment_scan`): two
+            points nearer than ``segment_distance_gap`` are still split when a surface
+            seen at ``lambda`` degrees from the beam could not join them; 0 (the thesis)
+            is off. In [0, 90).
         min_set_beams: ``n_thres``: sets with fewer beams are not used (thesis: 4).
         candidate_margin: a landmark is a correspondence candidate of a set when its
             reference is within its radius plus this margin [m] of the set centroid (the
@@ -695,6 +700,7 @@ class FilterConfig:
     initial_pose_sigma: tuple[float, float, float] = (1e-4, 1e-4, 1e-5)
     segment_angle_gap: float = 2.0
     segment_distance_gap: float = 1.0
+    segment_breakpoint_angle_deg: float = 0.0
     min_set_beams: int = 4
     candidate_margin: float = 2.0
     psi_thres_deg: float = 30.0
@@ -800,6 +806,11 @@ class FilterConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0.0):
                 raise ValueError(f"FilterConfig.{name} must be finite and > 0, got {value!r}")
+        if not 0.0 <= self.segment_breakpoint_angle_deg < 90.0:
+            raise ValueError(
+                "FilterConfig.segment_breakpoint_angle_deg must lie in [0, 90), got "
+                f"{self.segment_breakpoint_angle_deg!r}"
+            )
         if not 0.0 < self.prune_covered_fraction <= 1.0:
             raise ValueError(
                 "FilterConfig.prune_covered_fraction must lie in (0, 1], got "

@@ -1087,7 +1087,11 @@ class VertexSLAM:
     def _measurement_update(self, scan: Scan):
         cfg = self.config.filter
         sets = segment_scan(
-            scan, cfg.segment_angle_gap * self.sensor.phi_res, cfg.segment_distance_gap
+            scan,
+            cfg.segment_angle_gap * self.sensor.phi_res,
+            cfg.segment_distance_gap,
+            np.deg2rad(cfg.segment_breakpoint_angle_deg),
+            self.sensor.sigma_range,
         )
         lam = exponential_rate(scan.ranges, scan.max_range)
         decisions: list[SetDecision] = []
