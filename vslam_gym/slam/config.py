@@ -866,7 +866,11 @@ class FilterConfig:
 
     @classmethod
     def thesis(cls, **overrides: Any) -> FilterConfig:
-        """The thesis's filter: no chain pruning, ICP plausibility gate or update verification."""
+        """The thesis's filter.
+
+        No chain pruning, ICP plausibility gate, update verification, model-error terms,
+        loop closure, near-candidate or object-beam test.
+        """
         base: dict[str, Any] = dict(
             unknown_chain_max_vertices=0,
             candidate_max_median_distance=float("inf"),
