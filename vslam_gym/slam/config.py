@@ -811,21 +811,14 @@ class FilterConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0.0):
                 raise ValueError(f"FilterConfig.{name} must be finite and > 0, got {value!r}")
-        if not 0.0 <= self.segment_breakpoint_angle_deg < 90.0:
-            raise ValueError(
-                "FilterConfig.segment_breakpoint_angle_deg must lie in [0, 90), got "
-                f"{self.segment_breakpoint_angle_deg!r}"
-            )
-        if not 0.0 < self.prune_covered_fraction <= 1.0:
-            raise ValueError(
-                "FilterConfig.prune_covered_fraction must lie in (0, 1], got "
-                f"{self.prune_covered_fraction!r}"
-            )
-        if not 0.0 < self.prune_merge_probability < 1.0:
-            raise ValueError(
-                "FilterConfig.prune_merge_probability must lie in (0, 1), got "
-                f"{self.prune_merge_probability!r}"
-            )
+        for name, interval, inside in (
+            ("segment_breakpoint_angle_deg", "[0, 90)", lambda v: 0.0 <= v < 90.0),
+            ("prune_covered_fraction", "(0, 1]", lambda v: 0.0 < v <= 1.0),
+            ("prune_merge_probability", "(0, 1)", lambda v: 0.0 < v < 1.0),
+        ):
+            value = getattr(self, name)
+            if not inside(value):  # NaN fails too
+                raise ValueError(f"FilterConfig.{name} must lie in {interval}, got {value!r}")
         for name in ("prune_merge", "loop_closure"):
             value = getattr(self, name)
             if not isinstance(value, bool):
