@@ -94,6 +94,28 @@ def test_match_recovers_the_pose_of_an_earlier_visit_after_a_drift():
     assert strict.match(scan_at(true, rng), predicted, GATE_COV, now=100) is None
 
 
+def test_a_match_with_most_points_as_inliers_may_lie_farther_from_the_prediction():
+    true = np.array([1.2, -0.8, 0.25])
+    predicted = true + np.array([0.6, -0.45, 0.08])  # 3-6 sigma away (test above)
+    tight, rng = _closure(max_mahalanobis=3.0)
+    scan = scan_at(true, rng)
+    assert tight.match(scan, predicted, GATE_COV, now=100) is None
+    strong, _ = _closure(
+        max_mahalanobis=3.0, strong_inlier_fraction=0.8, strong_max_mahalanobis=6.0
+    )
+    found = strong.match(scan, predicted, GATE_COV, now=100)
+    assert found is not None and found.match.inlier_fraction >= 0.8
+    assert 3.0 < found.mahalanobis < 6.0
+    assert np.hypot(*(found.pose[:2] - true[:2])) < 0.03
+    # not enough inliers for the looser bound, or a looser bound that is not looser
+    for overrides in (
+        {"strong_inlier_fraction": 1.0, "strong_max_mahalanobis": 6.0},
+        {"strong_inlier_fraction": 0.8, "strong_max_mahalanobis": 2.0},
+    ):
+        other, _ = _closure(max_mahalanobis=3.0, **overrides)
+        assert other.match(scan, predicted, GATE_COV, now=100) is None
+
+
 def test_sigma_floor_widens_the_measurement_and_cooldown_skips_matches():
     loop, rng = _closure()
     floored, _ = _closure(sigma_floor=(0.05, 0.05, 0.01))
@@ -159,6 +181,8 @@ def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
         ({"loop_cooldown": -1}, "loop_cooldown"),
         ({"loop_min_innovation": -1.0}, "loop_min_innovation"),
         ({"loop_sigma_floor": (0.1, -0.1, 0.0)}, "loop_sigma_floor"),
+        ({"loop_strong_inlier_fraction": -0.1}, "loop_strong_inlier_fraction"),
+        ({"loop_strong_max_mahalanobis": float("nan")}, "loop_strong_max_mahalanobis"),
     ],
 )
 def test_loop_closure_options_are_validated(overrides, match):

@@ -753,6 +753,8 @@ class VertexSLAM:
             keyframe_heading_deg=cfg.loop_keyframe_heading_deg,
             min_inlier_fraction=cfg.loop_min_inlier_fraction,
             max_mahalanobis=cfg.loop_max_mahalanobis,
+            strong_inlier_fraction=cfg.loop_strong_inlier_fraction,
+            strong_max_mahalanobis=cfg.loop_strong_max_mahalanobis,
             sigma_floor=cfg.loop_sigma_floor,
             cooldown=cfg.loop_cooldown,
             max_distance_start=cfg.loop_max_distance_start,

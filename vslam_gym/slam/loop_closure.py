@@ -131,6 +131,10 @@ class LoopClosure:
         min_inlier_fraction: smallest fraction of the scan's points within the
             matcher's ``inlier_distance`` of the earlier visit's points.
         max_mahalanobis: largest distance of the match from the predicted pose.
+        strong_inlier_fraction: a match with at least this fraction of inliers ...
+        strong_max_mahalanobis: ... may lie up to this distance from the predicted pose
+            instead (used only when larger than ``max_mahalanobis``): a revisit that
+            explains most of the scan outweighs an overconfident pose covariance.
         sigma_floor: standard deviations ``(x [m], y [m], theta [rad])`` added in
             quadrature to the measurement's noise (the keyframes' pose errors beyond
             their overconfident covariance).
@@ -154,6 +158,8 @@ class LoopClosure:
         cooldown: int = 0,
         max_distance_start: float | None = None,
         max_distance_mid: float | None = None,
+        strong_inlier_fraction: float = 1.0,
+        strong_max_mahalanobis: float = 0.0,
     ) -> None:
         config = replace(
             matcher,
@@ -171,6 +177,8 @@ class LoopClosure:
         self.keyframes = RevisitKeyframes(config, min_age)
         self.min_inlier_fraction = float(min_inlier_fraction)
         self.max_mahalanobis = float(max_mahalanobis)
+        self.strong_inlier_fraction = float(strong_inlier_fraction)
+        self.strong_max_mahalanobis = float(strong_max_mahalanobis)
         self.floor_cov = np.diag(np.square(np.asarray(sigma_floor, dtype=float)))
         self.cooldown = int(cooldown)
         self._last_fused: int | None = None
@@ -211,9 +219,15 @@ class LoopClosure:
         except np.linalg.LinAlgError:
             return None
         distance = float(np.sqrt(max(m2, 0.0)))
-        if not distance <= self.max_mahalanobis:
+        if not distance <= self._mahalanobis_limit(result.inlier_fraction):
             return None
         return LoopMatch(result.pose.copy(), cov, result, distance)
+
+    def _mahalanobis_limit(self, inlier_fraction: float) -> float:
+        """The largest Mahalanobis distance a match with ``inlier_fraction`` may have."""
+        if inlier_fraction >= self.strong_inlier_fraction:
+            return max(self.max_mahalanobis, self.strong_max_mahalanobis)
+        return self.max_mahalanobis
 
     def add(self, points: np.ndarray, pose: np.ndarray, cov: np.ndarray, now: int) -> bool:
         """Keep the scan as a keyframe at the updated ``pose`` (cov ``(3, 3)``)."""
