@@ -130,6 +130,27 @@ def cholesky(S: np.ndarray, name: str = "covariance") -> np.ndarray:
         raise NotPositiveDefiniteError(name, _min_eigenvalue(S)) from None
 
 
+_POTRS = scipy.linalg.get_lapack_funcs("potrs", (np.empty((1, 1)),))
+"""LAPACK's float64 Cholesky solve, the routine behind :func:`scipy.linalg.cho_solve`."""
+
+
+def cho_solve_finite(lower: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``scipy.linalg.cho_solve((lower, True), b)`` without its input checks (hot paths).
+
+    The same LAPACK routine on the same arrays, so the same result to the last bit,
+    without scipy's finiteness checks and batching wrapper, whose overhead dominates on
+    the filter's small matrices. The caller guarantees what those checks would test:
+    ``lower`` is a lower Cholesky factor ``(n, n)`` and ``b`` ``(n,)`` or ``(n, m)``, both
+    finite float64 (e.g. the factor of a checked finite matrix and an identity).
+    """
+    if b.size == 0:
+        return scipy.linalg.cho_solve((lower, True), b)
+    x, info = _POTRS(lower, b, lower=True)
+    if info != 0:
+        raise ValueError(f"illegal value in {-info}th argument of internal potrs")
+    return x
+
+
 def is_spd(S: np.ndarray) -> bool:
     """Whether (the symmetric part of) every matrix in ``S`` is positive definite.
 
@@ -623,8 +644,8 @@ class Canonical:
         if mu.size == 0:
             return cls(np.zeros((0, 0)), np.zeros(0))
         factor = (cholesky(Sigma, "Canonical.from_moments covariance"), True)
-        K = scipy.linalg.cho_solve(factor, np.eye(mu.size))
-        h = scipy.linalg.cho_solve(factor, mu)
+        K = cho_solve_finite(factor[0], np.eye(mu.size))  # a checked finite factor
+        h = scipy.linalg.cho_solve(factor, mu)  # mu unchecked: scipy's check
         return cls(K, h)
 
     @classmethod
@@ -645,9 +666,9 @@ class Canonical:
         """
         if self.dim == 0:
             return np.zeros(0), np.zeros((0, 0))
-        factor = (cholesky(self.K, "Canonical information matrix K"), True)
-        Sigma = symmetrize(scipy.linalg.cho_solve(factor, np.eye(self.dim)))
-        mu = scipy.linalg.cho_solve(factor, self.h)
+        factor = cholesky(self.K, "Canonical information matrix K")
+        Sigma = symmetrize(cho_solve_finite(factor, np.eye(self.dim)))
+        mu = cho_solve_finite(factor, self.h)  # K and h are finite (checked on construction)
         return mu, Sigma
 
     def marginalize(self, keep: Sequence[int] | np.ndarray) -> Canonical:
@@ -738,7 +759,7 @@ def _solve_psd(A: np.ndarray, B: np.ndarray, name: str) -> np.ndarray:
     (relative residual below ``1e4 eps``), otherwise raises NotPositiveDefiniteError.
     """
     try:
-        return scipy.linalg.cho_solve((np.linalg.cholesky(A), True), B)
+        return cho_solve_finite(np.linalg.cholesky(A), B)  # blocks of a finite Canonical
     except np.linalg.LinAlgError:
         pass
     eigenvalues, eigenvectors = np.linalg.eigh(A)

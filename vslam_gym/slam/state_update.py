@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from vslam_gym.slam.gaussian import Canonical, cholesky, symmetrize
+from vslam_gym.slam.gaussian import Canonical, cho_solve_finite, cholesky, symmetrize
 from vslam_gym.slam.geometry import wrap_angle
 
 POSE_DIM = 3
@@ -264,9 +264,9 @@ def _conditional_v_given_r(local: Canonical, d: int) -> LandmarkConditional:
     m = local.marginalize(keep)
     r, v = np.arange(d), np.arange(d, m.dim)
     k8 = m.K[np.ix_(v, v)]
-    chol = (np.linalg.cholesky(k8), True)
-    a8 = -scipy.linalg.cho_solve(chol, m.K[np.ix_(v, r)])
-    b8 = scipy.linalg.cho_solve(chol, m.h[v])
+    chol = np.linalg.cholesky(k8)  # of a finite Canonical's block: finite
+    a8 = -cho_solve_finite(chol, m.K[np.ix_(v, r)])
+    b8 = cho_solve_finite(chol, m.h[v])
     return LandmarkConditional(A=a8, b=b8, K=symmetrize(k8))
 
 
@@ -351,10 +351,10 @@ def state_space_update(
         )
     else:
         lam_rr = lam[3:, 3:]
-        chol = (np.linalg.cholesky(lam_rr), True)
-        c_mat = -scipy.linalg.cho_solve(chol, lam[3:, :3])  # r | x = C x + c + e
-        c_vec = scipy.linalg.cho_solve(chol, eta[3:])
-        e_cov = scipy.linalg.cho_solve(chol, np.eye(d))
+        chol = np.linalg.cholesky(lam_rr)  # lam, eta: a finite Canonical's
+        c_mat = -cho_solve_finite(chol, lam[3:, :3])  # r | x = C x + c + e
+        c_vec = cho_solve_finite(chol, eta[3:])
+        e_cov = cho_solve_finite(chol, np.eye(d))
         lam_x = lam[:3, :3] + lam[:3, 3:] @ c_mat
         eta_x = eta[:3] - lam[:3, 3:] @ c_vec
         mu_x, sigma_x = _woodbury(mu, sigma, pose, symmetrize(lam_x), eta_x)
