@@ -563,7 +563,7 @@ class VertexSLAM:
                     id=lm.id,
                     reference=self._mu[r].copy(),
                     reference_cov=self._sigma[r, r].copy(),
-                    model=self._model(lm).copy(),
+                    model=_model_copy(self._model(lm)),
                     object_vertices=lm.object_vertices,
                 )
             )
@@ -1637,8 +1637,9 @@ class VertexSLAM:
     def _model(self, lm: _Landmark) -> LandmarkModel:
         """The landmark's model as of the last refresh (or its own last update)."""
         if lm.model is None:
+            # The conditional and u as :meth:`_model_of` checked them, at another reference.
             mean = lm.cond.mean(lm.refreshed_at)
-            lm.model = LandmarkModel(mean, lm.cond.covariance(), lm.u.copy(), lm.closed)
+            lm.model = LandmarkModel._trusted(mean, lm.cond.covariance(), lm.u.copy(), lm.closed)
         return lm.model
 
     @staticmethod
@@ -1657,7 +1658,7 @@ class VertexSLAM:
             sigma = self.config.filter.detection_model_sigma
             if sigma > 0.0:
                 cov = model.cov + sigma**2 * np.eye(model.cov.shape[0])
-                model = LandmarkModel(model.mean, cov, model.u, model.closed)
+                model = LandmarkModel._trusted(model.mean, cov, model.u, model.closed)
             lm.detection_model = model
         return lm.detection_model
 
@@ -1665,6 +1666,11 @@ class VertexSLAM:
         if lm.parts is None:
             lm.parts = model_parts(self._detection_model(lm))
         return lm.parts
+
+
+def _model_copy(model: LandmarkModel) -> LandmarkModel:
+    """:meth:`LandmarkModel.copy` of a model the filter built (no re-validation)."""
+    return LandmarkModel._trusted(model.mean.copy(), model.cov.copy(), model.u.copy(), model.closed)
 
 
 def _predicted_result(pose: np.ndarray, n_points: int) -> IcpResult:

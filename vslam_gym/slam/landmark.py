@@ -43,6 +43,20 @@ class LandmarkModel:
         if self.u.size != self.n_lines:
             raise ValueError(f"u must have {self.n_lines} entries, got {self.u.size}")
 
+    @classmethod
+    def _trusted(
+        cls, mean: np.ndarray, cov: np.ndarray, u: np.ndarray, closed: bool
+    ) -> LandmarkModel:
+        """A model of arrays already in form, stored as given (no conversion, no checks).
+
+        For internal hot paths rebuilding a model from data that a checked construction
+        accepted before: float ``(k, 2)`` means, ``(2k, 2k)`` covariance and
+        ``(n_lines,)`` ``u``.
+        """
+        model = object.__new__(cls)
+        model.mean, model.cov, model.u, model.closed = mean, cov, u, closed
+        return model
+
     @property
     def n_vertices(self) -> int:
         """Number of vertices ``k``."""
