@@ -209,3 +209,23 @@ def test_fit_line_jacobian_batched_and_isotropic():
     square = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
     with pytest.raises(ValueError, match="equal eigenvalues"):
         fit_line_jacobian(square, *fit_line(square))
+
+
+def test_wrap_angle_of_one_float_matches_the_array_path_bitwise():
+    rng = np.random.default_rng(5)
+    k = np.arange(-20, 21) * np.pi
+    angles = np.concatenate(
+        [
+            rng.normal(0.0, 10.0, 2000),
+            rng.normal(0.0, 1e-17, 200),
+            np.nextafter(k, -np.inf),
+            np.nextafter(k, np.inf),
+            k,
+            [0.0, -0.0, 1e300, -1e300],
+        ]
+    )
+    for a in angles.tolist():
+        scalar = wrap_angle(a)
+        assert type(scalar) is np.float64
+        reference = wrap_angle(np.array([a]))[0]
+        assert scalar == reference and np.signbit(scalar) == np.signbit(reference)

@@ -11,6 +11,8 @@ dimensions (SPEC.md sections 0, 2 and 3).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 TWO_PI = 2.0 * np.pi
@@ -39,6 +41,10 @@ def check_pose(pose: object) -> np.ndarray:
 
 def wrap_angle(a: np.ndarray | float) -> np.ndarray:
     """Wrap angles [rad] into ``[-pi, pi)`` (``pi`` maps to ``-pi``); any shape."""
+    if isinstance(a, float) and math.isfinite(a):  # one angle: the same steps on floats
+        # (Python's % is numpy's float remainder: fmod, then the divisor's sign.)
+        wrapped = (a + math.pi) % TWO_PI - math.pi
+        return np.float64(wrapped - TWO_PI if wrapped >= math.pi else wrapped)
     a = np.asarray(a, dtype=float)
     wrapped = np.mod(a + np.pi, TWO_PI) - np.pi
     # np.mod can round up to exactly 2 pi for tiny negative arguments.
