@@ -818,7 +818,7 @@ def create_model(
     config = config or ModelConfig()
     lin = linearization or make_linearization(config)
     pose = np.asarray(pose, dtype=float).reshape(3)
-    if not np.all(np.isfinite(pose)):
+    if not np.isfinite(pose).all():
         raise ValueError(f"pose must be finite, got {pose}")
     if not (0 <= first and last < scan.n and last - first + 1 >= 3):
         raise DegenerateSegmentError(

@@ -217,7 +217,7 @@ def _check_model(model: LandmarkModel) -> None:
         raise ValueError(f"model must be a LandmarkModel, got {type(model).__name__}")
     if model.n_lines < 1:
         raise ValueError(f"model must have at least one line, got {model.n_vertices} vertices")
-    if not (np.all(np.isfinite(model.mean)) and np.all(np.isfinite(model.cov))):
+    if not (np.isfinite(model.mean).all() and np.isfinite(model.cov).all()):
         raise ValueError("model mean and covariance must be finite")
 
 
@@ -489,7 +489,7 @@ def _check_poses(poses: object, n_models: int) -> np.ndarray:
             f"poses must have shape ({n_models}, 3) = one [x, y, theta] per model, got "
             f"shape {arr.shape}"
         )
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f"pose must be finite, got {arr}")
     return arr
 

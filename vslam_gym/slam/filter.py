@@ -531,7 +531,7 @@ class VertexSLAM:
     def reset(self, initial_pose=(0.0, 0.0, 0.0)) -> Belief:
         """Forget the map; the lidar starts at ``initial_pose (+) lidar_offset``."""
         pose = np.asarray(initial_pose, dtype=float)
-        if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+        if pose.shape != (3,) or not np.isfinite(pose).all():
             raise ValueError(f"initial_pose must be 3 finite numbers, got {initial_pose!r}")
         self._mu = compose(pose, self._offset)
         self._sigma = np.diag(np.asarray(self.config.filter.initial_pose_sigma) ** 2)
@@ -877,7 +877,7 @@ class VertexSLAM:
             gated_out.tried[c] = (lms[c].id, "far", np.nan, np.nan, False)
         cfg = self.config.filter
         for c, res in zip(work.aligned, results, strict=True):
-            if not np.all(np.isfinite(res.pose)):
+            if not np.isfinite(res.pose).all():
                 continue
             d = res.pose - pose
             d[2] = wrap_angle(d[2])
@@ -894,7 +894,7 @@ class VertexSLAM:
                 if (
                     retry.converged
                     and retry.n_used >= cfg.icp_retry_min_fraction * work.points.shape[0]
-                    and np.all(np.isfinite(d_retry))
+                    and np.isfinite(d_retry).all()
                     and self._gate_distance(lms[c], d_retry, gate.gate_cov, gate.chol_gate)
                     <= cfg.icp_max_pose_mahalanobis
                 ):

@@ -105,13 +105,13 @@ def _min_eigenvalue(S: np.ndarray) -> float:
     """Smallest eigenvalue of the symmetric part of ``S`` over the whole batch."""
     if S.shape[-1] == 0:
         return float("inf")
-    if not np.all(np.isfinite(S)):
+    if not np.isfinite(S).all():
         return float("nan")
     return float(np.min(np.linalg.eigvalsh(symmetrize(S))))
 
 
 def _check_finite(S: np.ndarray, name: str) -> None:
-    if not np.all(np.isfinite(S)):
+    if not np.isfinite(S).all():
         raise ValueError(f"{name} contains non-finite values (nan or inf)")
 
 
@@ -157,7 +157,7 @@ def is_spd(S: np.ndarray) -> bool:
     Cholesky based; non-finite or non-square input gives ``False``.
     """
     S = np.asarray(S, dtype=float)
-    if S.ndim < 2 or S.shape[-1] != S.shape[-2] or not np.all(np.isfinite(S)):
+    if S.ndim < 2 or S.shape[-1] != S.shape[-2] or not np.isfinite(S).all():
         return False
     try:
         np.linalg.cholesky(symmetrize(S))

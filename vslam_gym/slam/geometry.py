@@ -34,7 +34,7 @@ def check_pose(pose: object) -> np.ndarray:
         raise ValueError(f"pose must be numeric [x, y, theta], got {pose!r}") from exc
     if arr.shape != (3,):
         raise ValueError(f"pose must have shape (3,) = [x, y, theta], got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f"pose must be finite, got {arr}")
     return arr
 

@@ -208,7 +208,7 @@ class PoseBound:
 
     def __post_init__(self) -> None:
         w = np.asarray(self.whitening, dtype=float)
-        if w.shape != (3, 3) or not np.all(np.isfinite(w)):
+        if w.shape != (3, 3) or not np.isfinite(w).all():
             raise ValueError(f"PoseBound.whitening must be a finite (3, 3) matrix, got {w!r}")
         if not self.limit >= 0.0:
             raise ValueError(f"PoseBound.limit must be >= 0, got {self.limit!r}")
@@ -234,7 +234,7 @@ def _check_points(points: object) -> np.ndarray:
         raise ValueError("points must be a numeric (n, 2) array") from exc
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(f"points must have shape (n, 2) [m], got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
         raise ValueError(f"points contain NaN or inf at rows {bad[:5].tolist()}")
     return arr
@@ -245,7 +245,7 @@ def _check_model(model: object) -> LandmarkModel:
         raise ValueError(f"model must be a LandmarkModel, got {type(model).__name__}")
     if model.n_lines < 1:
         raise ValueError(f"model must have at least one line, got {model.n_vertices} vertices")
-    if not np.all(np.isfinite(model.mean)):
+    if not np.isfinite(model.mean).all():
         raise ValueError("model vertex means must be finite")
     return model
 
@@ -1210,7 +1210,7 @@ def object_radius(model: LandmarkModel, reference: np.ndarray, unknown_threshold
     """
     model = _check_model(model)
     ref = np.asarray(reference, dtype=float)
-    if ref.shape != (2,) or not np.all(np.isfinite(ref)):
+    if ref.shape != (2,) or not np.isfinite(ref).all():
         raise ValueError(f"reference must be a finite (2,) point [m], got {ref!r}")
     idx = model.line_vertices()[model.u <= unknown_threshold]
     vertices = model.mean[np.unique(idx)] if idx.size else model.mean
@@ -1254,7 +1254,7 @@ def candidate_landmarks(
         raise ValueError(f"references must have shape (L, 2), got {refs.shape}")
     if r.shape != (refs.shape[0],):
         raise ValueError(f"radii must have shape ({refs.shape[0]},), got {r.shape}")
-    if not (np.all(np.isfinite(c)) and np.all(np.isfinite(refs)) and np.all(np.isfinite(r))):
+    if not (np.isfinite(c).all() and np.isfinite(refs).all() and np.isfinite(r).all()):
         raise ValueError("centroid, references and radii must be finite")
     if np.any(r < 0):
         raise ValueError(f"radii must be >= 0, got {r[r < 0][:3]}")

@@ -70,7 +70,7 @@ def _finite(name: str, value: object) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name} must be numeric, got {value!r}") from exc
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite, got non-finite values in {arr!r}")
     return arr
 
@@ -740,7 +740,7 @@ def detection_statistics(d2: np.ndarray) -> tuple[float, float]:
         raise ValueError("d2 must hold at least one value")
     if np.any(np.isnan(arr)) or np.any(arr < 0.0):
         raise ValueError(f"d2 must be >= 0 and not NaN, got {arr!r}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         return float("inf"), float("inf")
     return float(np.mean(arr)), float(np.var(arr))
 
