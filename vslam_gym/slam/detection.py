@@ -60,7 +60,7 @@ from vslam_gym.slam.gaussian import (
     Linearization,
     make_linearization,
 )
-from vslam_gym.slam.geometry import check_pose, wrap_angle
+from vslam_gym.slam.geometry import check_pose, stack_last, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.likelihood import (
     _expected_range_parts,
@@ -590,7 +590,7 @@ def _vertex_polar_many(
     sxx, syy, sxy = blocks[..., 0, 0], blocks[..., 1, 1], blocks[..., 0, 1]
     lam_max = 0.5 * (sxx + syy) + np.hypot(0.5 * (sxx - syy), sxy)
     near = r <= config.detection_gate_sigma * np.sqrt(np.maximum(lam_max, 0.0))
-    polar_mean = np.stack([r, raw_bearing], axis=-1)
+    polar_mean = stack_last(r, raw_bearing)
     with np.errstate(divide="ignore", invalid="ignore"):
         jac = _polar_jacobian(dx, dy)
         polar_cov = jac @ blocks @ np.swapaxes(jac, -1, -2)

@@ -41,7 +41,7 @@ from vslam_gym.slam.creation import create_model, initial_grouping
 from vslam_gym.slam.creation import point_covariances as _point_covariances
 from vslam_gym.slam.detection import detect_many, model_parts
 from vslam_gym.slam.gaussian import inflated_information, make_linearization, symmetrize
-from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.geometry import stack_last, wrap_angle
 from vslam_gym.slam.icp import (
     IcpConfig,
     IcpResult,
@@ -798,7 +798,7 @@ class VertexSLAM:
     def _set_points(self, scan: Scan, first: int, last: int, pose: np.ndarray) -> np.ndarray:
         r = scan.ranges[first : last + 1]
         a = pose[2] + scan.bearings[first : last + 1]
-        return np.stack([pose[0] + r * np.cos(a), pose[1] + r * np.sin(a)], axis=1)
+        return stack_last(pose[0] + r * np.cos(a), pose[1] + r * np.sin(a))
 
     def _refs(self) -> np.ndarray:
         """``(L, d)`` every landmark's reference mean (a copy; ``d`` = 2, or 3 for frames).

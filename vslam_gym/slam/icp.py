@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vslam_gym.slam.geometry import check_pose, wrap_angle
+from vslam_gym.slam.geometry import check_pose, stack_last, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 
 __all__ = [
@@ -894,7 +894,7 @@ class _Batch:
 
     def sums(self, columns: list[np.ndarray]) -> np.ndarray:
         """``(A, len(columns))``: each ``(T,)`` column summed over every alignment's points."""
-        return np.add.reduceat(np.stack(columns, axis=1), self.starts, axis=0)
+        return np.add.reduceat(stack_last(*columns), self.starts, axis=0)
 
     def keep(self, running: np.ndarray) -> None:
         """Keep only the alignments where ``running`` ``(A,)`` is True."""
@@ -1152,7 +1152,7 @@ def _step(batch, act, go, running, stop, sums, nx, ny, e, kf, state, pose0, conf
     s = batch.sums(columns)
     rhs = -s[:, :3]
     # H = sum J_i^T J_i (4.3.10): the thesis form, and the point-to-line fallback.
-    thesis = np.stack([used, np.zeros_like(used), -s[:, 4], used, s[:, 3], s[:, 5]], axis=1)
+    thesis = stack_last(used, np.zeros_like(used), -s[:, 4], used, s[:, 3], s[:, 5])
     if config.point_to_line:  # H = sum a_i^T a_i, both forms solved in one call
         both, ok_both = _solve_spd3_many(
             np.concatenate([s[:, 6:12], thesis]), np.concatenate([rhs, rhs]), config.max_condition

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vslam_gym.slam.geometry import stack_last
+
 
 @dataclass
 class LandmarkModel:
@@ -71,7 +73,7 @@ class LandmarkModel:
     def line_vertices(self) -> np.ndarray:
         """``(n_lines, 2)`` int: the vertex indices ``(a, b)`` of each line."""
         j = np.arange(self.n_lines)
-        return np.stack([j, (j + 1) % self.n_vertices], axis=1)
+        return stack_last(j, (j + 1) % self.n_vertices)
 
     def vertex_cov(self, i: int) -> np.ndarray:
         """``(2, 2)`` covariance of vertex ``i`` [m^2]."""

@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg
 
 from vslam_gym.slam.gaussian import Canonical, cho_solve_finite, cholesky, symmetrize
-from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.geometry import stack_last, wrap_angle
 
 POSE_DIM = 3
 REF_DIM = 2
@@ -51,7 +51,7 @@ def rotation_columns(vertices: np.ndarray, centre: np.ndarray) -> np.ndarray:
     ``A_vr`` that belongs to a landmark frame's heading.
     """
     d = np.asarray(vertices, dtype=float).reshape(-1, 2) - np.asarray(centre, dtype=float)[:2]
-    return np.stack([-d[:, 1], d[:, 0]], axis=1).reshape(-1)
+    return stack_last(-d[:, 1], d[:, 0]).reshape(-1)
 
 
 def pose_measurement_update(
@@ -141,8 +141,8 @@ class LandmarkConditional:
         big = np.zeros((2 * k, 2 * k))
         old = np.flatnonzero(source >= 0)
         if old.size:
-            rows_new = np.stack([2 * old, 2 * old + 1], axis=1).reshape(-1)
-            rows_old = np.stack([2 * source[old], 2 * source[old] + 1], axis=1).reshape(-1)
+            rows_new = stack_last(2 * old, 2 * old + 1).reshape(-1)
+            rows_old = stack_last(2 * source[old], 2 * source[old] + 1).reshape(-1)
             a[rows_new] = self.A[rows_old]
             b[rows_new] = self.b[rows_old]
             big[np.ix_(rows_new, rows_new)] = cov[np.ix_(rows_old, rows_old)]
@@ -163,7 +163,7 @@ class LandmarkConditional:
         ``K'^-1 S^T K_keep (A_keep r + b_keep)``.
         """
         keep = np.asarray(keep, dtype=int)
-        rows = np.stack([2 * keep, 2 * keep + 1], axis=1).reshape(-1)
+        rows = stack_last(2 * keep, 2 * keep + 1).reshape(-1)
         k_keep = symmetrize(np.linalg.inv(self.covariance()[np.ix_(rows, rows)]))
         k_new = symmetrize(subst.T @ k_keep @ subst)
         proj = np.linalg.solve(k_new, subst.T @ k_keep)
