@@ -77,7 +77,7 @@ def _as_square(S: np.ndarray, name: str) -> np.ndarray:
 def symmetrize(S: np.ndarray) -> np.ndarray:
     """Return ``(S + S^T) / 2`` over the last two axes (batched over leading dims)."""
     S = _as_square(S, "matrix")
-    return 0.5 * (S + np.swapaxes(S, -1, -2))
+    return 0.5 * (S + S.swapaxes(-1, -2))
 
 
 def inflated_information(
@@ -597,6 +597,16 @@ def _index_array(indices: Sequence[int] | np.ndarray, dim: int, where: str) -> n
     return idx
 
 
+def _complement(idx: np.ndarray, dim: int) -> np.ndarray:
+    """The indices of ``0..dim-1`` not in ``idx`` (valid indices), ascending.
+
+    ``np.setdiff1d(np.arange(dim), idx)`` by a mask, without its sorting.
+    """
+    mask = np.ones(dim, dtype=bool)
+    mask[idx] = False
+    return np.flatnonzero(mask)
+
+
 def _readonly(array: np.ndarray) -> np.ndarray:
     array.setflags(write=False)
     return array
@@ -682,15 +692,15 @@ class Canonical:
         raised.
         """
         k = _index_array(keep, self.dim, "Canonical.marginalize")
-        m = np.setdiff1d(np.arange(self.dim), k)
-        K_kk = self.K[np.ix_(k, k)]
+        m = _complement(k, self.dim)
+        K_kk = self.K[k[:, None], k]  # np.ix_(k, k) without its overhead
         h_k = self.h[k]
         if m.size == 0:
             return Canonical(K_kk, h_k)
-        K_mm = self.K[np.ix_(m, m)]
-        rhs = np.column_stack([self.K[np.ix_(m, k)], self.h[m]])
+        K_mm = self.K[m[:, None], m]
+        rhs = np.column_stack([self.K[m[:, None], k], self.h[m]])
         solution = _solve_psd(K_mm, rhs, "Canonical.marginalize block K_mm")
-        K_km = self.K[np.ix_(k, m)]
+        K_km = self.K[k[:, None], m]
         correction = K_km @ solution
         return Canonical(K_kk - correction[:, :-1], h_k - correction[:, -1])
 
@@ -706,8 +716,8 @@ class Canonical:
                 f"Canonical.condition: {i.size} indices but {values.size} values given"
             )
         _check_finite(values, "Canonical.condition values")
-        r = np.setdiff1d(np.arange(self.dim), i)
-        return Canonical(self.K[np.ix_(r, r)], self.h[r] - self.K[np.ix_(r, i)] @ values)
+        r = _complement(i, self.dim)
+        return Canonical(self.K[r[:, None], r], self.h[r] - self.K[r[:, None], i] @ values)
 
     def transform(self, F: np.ndarray, offset: np.ndarray | None = None) -> Canonical:
         """Express the density in a new state ``x_new`` with ``x_old = F x_new + offset``.
