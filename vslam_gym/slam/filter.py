@@ -876,17 +876,26 @@ class VertexSLAM:
         for c in np.setdiff1d(np.arange(len(lms)), work.aligned):
             gated_out.tried[c] = (lms[c].id, "far", np.nan, np.nan, False)
         cfg = self.config.filter
-        for c, res in zip(work.aligned, results, strict=True):
-            if not np.isfinite(res.pose).all():
-                continue
-            d = res.pose - pose
-            d[2] = wrap_angle(d[2])
-            white = np.linalg.solve(gate.chol, d)
+        finite = [k for k, res in enumerate(results) if np.isfinite(res.pose).all()]
+        if not finite:
+            return gated_out
+        # Every finite result's pose offset and whitened offsets, one solve call each.
+        offsets = np.array([results[k].pose for k in finite]) - pose
+        offsets[:, 2] = wrap_angle(offsets[:, 2])
+        whites = _solve_each(gate.chol, offsets)
+        gate_whites = None  # the gate's, when its covariance is the same for every candidate
+        if gate.gate_cov is not None and not cfg.icp_gate_includes_reference:
+            gate_whites = _solve_each(gate.chol_gate, offsets)
+        for row, k in enumerate(finite):
+            c, res, d, white = work.aligned[k], results[k], offsets[row], whites[row]
             m2 = float(white @ white)
             test_pose, reason = res.pose, res.reason
-            gated = gate.gate_cov is not None and self._gate_distance(
-                lms[c], d, gate.gate_cov, gate.chol_gate
-            ) > (cfg.icp_max_pose_mahalanobis)
+            gated = False
+            if gate_whites is not None:  # as _gate_distance
+                gated = float(np.linalg.norm(gate_whites[row])) > cfg.icp_max_pose_mahalanobis
+            elif gate.gate_cov is not None:
+                distance = self._gate_distance(lms[c], d, gate.gate_cov, gate.chol_gate)
+                gated = distance > cfg.icp_max_pose_mahalanobis
             if gated and cfg.icp_retry_correspondence_distance > 0.0:
                 retry = self._robust_alignment(work, c)
                 d_retry = retry.pose - pose
@@ -1671,6 +1680,15 @@ class VertexSLAM:
 def _model_copy(model: LandmarkModel) -> LandmarkModel:
     """:meth:`LandmarkModel.copy` of a model the filter built (no re-validation)."""
     return LandmarkModel._trusted(model.mean.copy(), model.cov.copy(), model.u.copy(), model.closed)
+
+
+def _solve_each(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b[i])`` for every row of ``b`` ``(m, n)``, in one call ``(m, n)``.
+
+    The stacked call solves each system with the same LAPACK routine on the same numbers
+    as a single call (the same result to the last bit), without the per-call overhead.
+    """
+    return np.linalg.solve(np.broadcast_to(a, (b.shape[0], *a.shape)), b[:, :, None])[:, :, 0]
 
 
 def _predicted_result(pose: np.ndarray, n_points: int) -> IcpResult:
