@@ -287,9 +287,12 @@ class _Lines:
     index: np.ndarray | None = None
 
     def __init__(self, model: LandmarkModel) -> None:
-        idx = model.line_vertices()
-        a = model.mean[idx[:, 0]]
-        ab = model.mean[idx[:, 1]] - a
+        # Line j joins vertices j and j + 1 (a closed polygon's last one: k - 1 and 0), as
+        # model.line_vertices(): its ends by slicing instead of fancy indexing.
+        mean, n = model.mean, model.n_lines
+        a = mean[:n]
+        b = np.concatenate([mean[1:], mean[:1]]) if model.closed else mean[1 : n + 1]
+        ab = b - a
         self.ax, self.ay = a[:, 0].copy(), a[:, 1].copy()
         self.abx, self.aby = ab[:, 0].copy(), ab[:, 1].copy()
         length2 = self.abx * self.abx + self.aby * self.aby
