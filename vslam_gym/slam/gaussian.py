@@ -653,9 +653,12 @@ class Canonical:
             )
         if mu.size == 0:
             return cls(np.zeros((0, 0)), np.zeros(0))
-        factor = (cholesky(Sigma, "Canonical.from_moments covariance"), True)
-        K = cho_solve_finite(factor[0], np.eye(mu.size))  # a checked finite factor
-        h = scipy.linalg.cho_solve(factor, mu)  # mu unchecked: scipy's check
+        lower = cholesky(Sigma, "Canonical.from_moments covariance")  # checked: finite
+        K = cho_solve_finite(lower, np.eye(mu.size))
+        if np.isfinite(mu).all():
+            h = cho_solve_finite(lower, mu)
+        else:  # scipy's finiteness check raises its error
+            h = scipy.linalg.cho_solve((lower, True), mu)
         return cls(K, h)
 
     @classmethod
