@@ -924,12 +924,15 @@ def detect_many(
     assocs = beam_line_correspondences(
         models, scan, first, last, poses, sensor, config, lin, lam, parts=parts
     )
-    sizes = {a.n for a in assocs}
-    if len(sizes) == 1:
-        mean_d2, var_d2 = _trimmed_statistics(np.stack([a.d2 for a in assocs]), config)
-    else:  # sets of different lengths: model by model
-        stats = [_trimmed_statistics(a.d2[None, :], config) for a in assocs]
-        mean_d2, var_d2 = [m[0] for m, _ in stats], [v[0] for _, v in stats]
+    # The statistics of the sets of each length in one call (each row on its own).
+    mean_d2, var_d2 = [0.0] * len(assocs), [0.0] * len(assocs)
+    by_size: dict[int, list[int]] = {}
+    for i, a in enumerate(assocs):
+        by_size.setdefault(a.n, []).append(i)
+    for rows in by_size.values():
+        means, variances = _trimmed_statistics(np.stack([assocs[i].d2 for i in rows]), config)
+        for i, mean, var in zip(rows, means, variances, strict=True):
+            mean_d2[i], var_d2[i] = mean, var
     out = []
     for assoc, mean, var in zip(assocs, mean_d2, var_d2, strict=True):
         # The rule of likelihood.detection_accepts, on the statistics already computed.
