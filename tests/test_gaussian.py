@@ -14,6 +14,7 @@ from vslam_gym.slam.gaussian import (
     Linearization,
     NotPositiveDefiniteError,
     UnscentedLinearization,
+    cho_solve_finite,
     ensure_spd,
     first_order_transform,
     inflated_information,
@@ -441,3 +442,17 @@ def test_inflated_information_with_an_extra_covariance():
     np.testing.assert_allclose(
         inflated_information(k, 0.0, extra), np.linalg.inv(np.linalg.inv(k) + extra), rtol=1e-10
     )
+
+
+@pytest.mark.parametrize("columns", [None, 1, 4])
+def test_cho_solve_finite_matches_scipy_bitwise(columns):
+    import scipy.linalg
+
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(5, 5))
+    lower = np.linalg.cholesky(a @ a.T + np.eye(5))
+    b = rng.normal(size=5 if columns is None else (5, columns))
+    np.testing.assert_array_equal(
+        cho_solve_finite(lower, b), scipy.linalg.cho_solve((lower, True), b)
+    )
+    assert cho_solve_finite(lower, np.zeros((5, 0))).shape == (5, 0)

@@ -16,6 +16,7 @@ from vslam_gym.slam.geometry import (
     perpendicular_distance,
     polar_to_cartesian,
     polar_to_cartesian_jacobian,
+    stack_last,
     wrap_angle,
 )
 
@@ -209,3 +210,42 @@ def test_fit_line_jacobian_batched_and_isotropic():
     square = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
     with pytest.raises(ValueError, match="equal eigenvalues"):
         fit_line_jacobian(square, *fit_line(square))
+
+
+def test_wrap_angle_of_one_float_matches_the_array_path_bitwise():
+    rng = np.random.default_rng(5)
+    k = np.arange(-20, 21) * np.pi
+    angles = np.concatenate(
+        [
+            rng.normal(0.0, 10.0, 2000),
+            rng.normal(0.0, 1e-17, 200),
+            np.nextafter(k, -np.inf),
+            np.nextafter(k, np.inf),
+            k,
+            [0.0, -0.0, 1e300, -1e300],
+        ]
+    )
+    for a in angles.tolist():
+        scalar = wrap_angle(a)
+        assert type(scalar) is np.float64
+        reference = wrap_angle(np.array([a]))[0]
+        assert scalar == reference and np.signbit(scalar) == np.signbit(reference)
+
+
+@pytest.mark.parametrize("shape", [(5,), (0,), (1, 3), (4, 5), (3, 4, 2)])
+@pytest.mark.parametrize("kind", ["contiguous", "strided", "transposed", "int"])
+def test_stack_last_matches_np_stack_with_its_layout(shape, kind):
+    rng = np.random.default_rng(11)
+    if kind == "contiguous":
+        arrays = [rng.random(shape) for _ in range(3)]
+    elif kind == "strided":
+        arrays = [rng.random(tuple(2 * n for n in shape))[(slice(None, None, 2),) * len(shape)]]
+        arrays *= 3
+    elif kind == "transposed":
+        arrays = [rng.random(shape[::-1]).T for _ in range(3)]
+    else:
+        arrays = [rng.integers(0, 9, shape) for _ in range(3)]
+    expected = np.stack(arrays, axis=-1)
+    got = stack_last(*arrays)
+    assert got.dtype == expected.dtype and got.strides == expected.strides
+    np.testing.assert_array_equal(got, expected)

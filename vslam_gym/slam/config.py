@@ -53,7 +53,7 @@ class SensorConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"SensorConfig.{name} must be finite and > 0, got {value!r}")
-        if len(self.lidar_offset) != 3 or not np.all(np.isfinite(self.lidar_offset)):
+        if len(self.lidar_offset) != 3 or not np.isfinite(self.lidar_offset).all():
             raise ValueError(
                 f"SensorConfig.lidar_offset must be 3 finite numbers, got {self.lidar_offset!r}"
             )
@@ -872,7 +872,7 @@ class FilterConfig:
         """Check 3 finite standard deviations >= 0 and store them as a tuple (hashable)."""
         value = getattr(self, name)
         floor = np.asarray(value, dtype=float)
-        if floor.shape != (3,) or not np.all(np.isfinite(floor)) or np.any(floor < 0):
+        if floor.shape != (3,) or not np.isfinite(floor).all() or np.any(floor < 0):
             raise ValueError(f"FilterConfig.{name} must be 3 finite numbers >= 0, got {value!r}")
         # A frozen config stays hashable when built from JSON lists.
         object.__setattr__(self, name, tuple(float(v) for v in floor))

@@ -40,6 +40,7 @@ from vslam_gym.slam.gaussian import (
     make_linearization,
     symmetrize,
 )
+from vslam_gym.slam.geometry import stack_last
 from vslam_gym.slam.landmark import LandmarkModel, ModelFit, conditional_on_pose
 from vslam_gym.slam.likelihood import object_loglik, range_error_distribution
 from vslam_gym.slam.scan import Scan
@@ -80,7 +81,7 @@ def _points(x: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """World-frame points ``(..., n, 2)`` of interleaved polar rows ``x`` ``(..., 2n)``."""
     r = x[..., 0::2]
     a = pose[2] + x[..., 1::2]
-    return np.stack([pose[0] + r * np.cos(a), pose[1] + r * np.sin(a)], axis=-1)
+    return stack_last(pose[0] + r * np.cos(a), pose[1] + r * np.sin(a))
 
 
 def _oriented_line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -167,7 +168,7 @@ class _FirstOrderLines:
         self.cov = point_cov
         self.ranges = modeller.z[0::2]
         angle = pose[2] + modeller.z[1::2]
-        self.u = np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+        self.u = stack_last(np.cos(angle), np.sin(angle))
         self.pos = pose[:2]
         self.var_r = modeller.sensor.sigma_range**2
         self.var_phi = modeller.sensor.sigma_bearing**2
@@ -225,8 +226,9 @@ def _polar_point_distribution(
     """
     r, a = zp[:, 0], pose[2] + zp[:, 1]
     c, s_ = np.cos(a), np.sin(a)
-    mu = np.stack([pose[0] + r * c, pose[1] + r * s_], axis=-1)
-    jac = np.stack([np.stack([c, -r * s_], -1), np.stack([s_, r * c], -1)], axis=-2)
+    mu = stack_last(pose[0] + r * c, pose[1] + r * s_)
+    jac = np.empty((*c.shape, 2, 2))  # [[c, -r s], [s, r c]]
+    jac[..., 0, 0], jac[..., 0, 1], jac[..., 1, 0], jac[..., 1, 1] = c, -r * s_, s_, r * c
     cov = (jac * np.diag(sensor.Q)) @ np.swapaxes(jac, -1, -2)
     ut = ~(zp[:, 0] == 0.0) if not isinstance(lin, FirstOrderLinearization) else None
     if ut is not None and np.any(ut):
@@ -525,7 +527,7 @@ def _parallel_pairs(modeller: _SegmentModeller, groups: list[tuple[int, int]]) -
     """Sine of the angle between each pair of adjacent lines (end lines included)."""
     pts = modeller.points
     fit = _SpanFits(pts, groups)
-    d = np.stack([np.cos(fit.psi), np.sin(fit.psi)], axis=-1)
+    d = stack_last(np.cos(fit.psi), np.sin(fit.psi))
     # Oriented from each group's first towards its last point (as _oriented_line).
     ends = np.asarray(groups, dtype=int).reshape(-1, 2)
     span = pts[ends[:, 1]] - pts[ends[:, 0]]
@@ -614,7 +616,7 @@ def _first_order_vertices(
     lines_d = np.empty((m + 2, 2))
     lines_p[[0, -1]] = pose[:2]
     end_angles = pose[2] + modeller.z[[1, -1]]
-    lines_d[[0, -1]] = np.stack([np.cos(end_angles), np.sin(end_angles)], axis=-1)
+    lines_d[[0, -1]] = stack_last(np.cos(end_angles), np.sin(end_angles))
     j_psi[0, 1] = 1.0  # the left end line turns with the first beam's bearing
     j_psi[-1, 2 * n - 1] = 1.0  # the right one with the last beam's
 
@@ -646,10 +648,10 @@ def _first_order_vertices(
 
     # Vertex i joins lines i (A) and i + 1 (B): solve [n_A; n_B] v = [n_A . p_A; n_B . p_B].
     pa, da, pb, db = lines_p[:-1], lines_d[:-1], lines_p[1:], lines_d[1:]
-    normals = np.stack([-lines_d[:, 1], lines_d[:, 0]], axis=-1)
+    normals = stack_last(-lines_d[:, 1], lines_d[:, 0])
     offsets = np.array([nrm @ p for nrm, p in zip(normals, lines_p, strict=True)])
     mat = np.stack([normals[:-1], normals[1:]], axis=-2)  # (m + 1, 2, 2)
-    mu = np.linalg.solve(mat, np.stack([offsets[:-1], offsets[1:]], axis=-1)[..., None])[..., 0]
+    mu = np.linalg.solve(mat, stack_last(offsets[:-1], offsets[1:])[..., None])[..., 0]
     inv = np.linalg.inv(mat)
     row_a = j_rho[:-1] + np.sum(da * (mu - pa), axis=1)[:, None] * j_psi[:-1]
     row_b = j_rho[1:] + np.sum(db * (mu - pb), axis=1)[:, None] * j_psi[1:]
@@ -818,7 +820,7 @@ def create_model(
     config = config or ModelConfig()
     lin = linearization or make_linearization(config)
     pose = np.asarray(pose, dtype=float).reshape(3)
-    if not np.all(np.isfinite(pose)):
+    if not np.isfinite(pose).all():
         raise ValueError(f"pose must be finite, got {pose}")
     if not (0 <= first and last < scan.n and last - first + 1 >= 3):
         raise DegenerateSegmentError(

@@ -60,7 +60,7 @@ from vslam_gym.slam.gaussian import (
     Linearization,
     make_linearization,
 )
-from vslam_gym.slam.geometry import check_pose, wrap_angle
+from vslam_gym.slam.geometry import check_pose, stack_last, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.likelihood import (
     _expected_range_parts,
@@ -217,7 +217,7 @@ def _check_model(model: LandmarkModel) -> None:
         raise ValueError(f"model must be a LandmarkModel, got {type(model).__name__}")
     if model.n_lines < 1:
         raise ValueError(f"model must have at least one line, got {model.n_vertices} vertices")
-    if not (np.all(np.isfinite(model.mean)) and np.all(np.isfinite(model.cov))):
+    if not (np.isfinite(model.mean).all() and np.isfinite(model.cov).all()):
         raise ValueError("model mean and covariance must be finite")
 
 
@@ -489,7 +489,7 @@ def _check_poses(poses: object, n_models: int) -> np.ndarray:
             f"poses must have shape ({n_models}, 3) = one [x, y, theta] per model, got "
             f"shape {arr.shape}"
         )
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f"pose must be finite, got {arr}")
     return arr
 
@@ -590,7 +590,7 @@ def _vertex_polar_many(
     sxx, syy, sxy = blocks[..., 0, 0], blocks[..., 1, 1], blocks[..., 0, 1]
     lam_max = 0.5 * (sxx + syy) + np.hypot(0.5 * (sxx - syy), sxy)
     near = r <= config.detection_gate_sigma * np.sqrt(np.maximum(lam_max, 0.0))
-    polar_mean = np.stack([r, raw_bearing], axis=-1)
+    polar_mean = stack_last(r, raw_bearing)
     with np.errstate(divide="ignore", invalid="ignore"):
         jac = _polar_jacobian(dx, dy)
         polar_cov = jac @ blocks @ np.swapaxes(jac, -1, -2)
@@ -924,12 +924,15 @@ def detect_many(
     assocs = beam_line_correspondences(
         models, scan, first, last, poses, sensor, config, lin, lam, parts=parts
     )
-    sizes = {a.n for a in assocs}
-    if len(sizes) == 1:
-        mean_d2, var_d2 = _trimmed_statistics(np.stack([a.d2 for a in assocs]), config)
-    else:  # sets of different lengths: model by model
-        stats = [_trimmed_statistics(a.d2[None, :], config) for a in assocs]
-        mean_d2, var_d2 = [m[0] for m, _ in stats], [v[0] for _, v in stats]
+    # The statistics of the sets of each length in one call (each row on its own).
+    mean_d2, var_d2 = [0.0] * len(assocs), [0.0] * len(assocs)
+    by_size: dict[int, list[int]] = {}
+    for i, a in enumerate(assocs):
+        by_size.setdefault(a.n, []).append(i)
+    for rows in by_size.values():
+        means, variances = _trimmed_statistics(np.stack([assocs[i].d2 for i in rows]), config)
+        for i, mean, var in zip(rows, means, variances, strict=True):
+            mean_d2[i], var_d2[i] = mean, var
     out = []
     for assoc, mean, var in zip(assocs, mean_d2, var_d2, strict=True):
         # The rule of likelihood.detection_accepts, on the statistics already computed.

@@ -77,7 +77,7 @@ def _as_square(S: np.ndarray, name: str) -> np.ndarray:
 def symmetrize(S: np.ndarray) -> np.ndarray:
     """Return ``(S + S^T) / 2`` over the last two axes (batched over leading dims)."""
     S = _as_square(S, "matrix")
-    return 0.5 * (S + np.swapaxes(S, -1, -2))
+    return 0.5 * (S + S.swapaxes(-1, -2))
 
 
 def inflated_information(
@@ -105,13 +105,13 @@ def _min_eigenvalue(S: np.ndarray) -> float:
     """Smallest eigenvalue of the symmetric part of ``S`` over the whole batch."""
     if S.shape[-1] == 0:
         return float("inf")
-    if not np.all(np.isfinite(S)):
+    if not np.isfinite(S).all():
         return float("nan")
     return float(np.min(np.linalg.eigvalsh(symmetrize(S))))
 
 
 def _check_finite(S: np.ndarray, name: str) -> None:
-    if not np.all(np.isfinite(S)):
+    if not np.isfinite(S).all():
         raise ValueError(f"{name} contains non-finite values (nan or inf)")
 
 
@@ -130,13 +130,34 @@ def cholesky(S: np.ndarray, name: str = "covariance") -> np.ndarray:
         raise NotPositiveDefiniteError(name, _min_eigenvalue(S)) from None
 
 
+_POTRS = scipy.linalg.get_lapack_funcs("potrs", (np.empty((1, 1)),))
+"""LAPACK's float64 Cholesky solve, the routine behind :func:`scipy.linalg.cho_solve`."""
+
+
+def cho_solve_finite(lower: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``scipy.linalg.cho_solve((lower, True), b)`` without its input checks (hot paths).
+
+    The same LAPACK routine on the same arrays, so the same result to the last bit,
+    without scipy's finiteness checks and batching wrapper, whose overhead dominates on
+    the filter's small matrices. The caller guarantees what those checks would test:
+    ``lower`` is a lower Cholesky factor ``(n, n)`` and ``b`` ``(n,)`` or ``(n, m)``, both
+    finite float64 (e.g. the factor of a checked finite matrix and an identity).
+    """
+    if b.size == 0:
+        return scipy.linalg.cho_solve((lower, True), b)
+    x, info = _POTRS(lower, b, lower=True)
+    if info != 0:
+        raise ValueError(f"illegal value in {-info}th argument of internal potrs")
+    return x
+
+
 def is_spd(S: np.ndarray) -> bool:
     """Whether (the symmetric part of) every matrix in ``S`` is positive definite.
 
     Cholesky based; non-finite or non-square input gives ``False``.
     """
     S = np.asarray(S, dtype=float)
-    if S.ndim < 2 or S.shape[-1] != S.shape[-2] or not np.all(np.isfinite(S)):
+    if S.ndim < 2 or S.shape[-1] != S.shape[-2] or not np.isfinite(S).all():
         return False
     try:
         np.linalg.cholesky(symmetrize(S))
@@ -576,6 +597,16 @@ def _index_array(indices: Sequence[int] | np.ndarray, dim: int, where: str) -> n
     return idx
 
 
+def _complement(idx: np.ndarray, dim: int) -> np.ndarray:
+    """The indices of ``0..dim-1`` not in ``idx`` (valid indices), ascending.
+
+    ``np.setdiff1d(np.arange(dim), idx)`` by a mask, without its sorting.
+    """
+    mask = np.ones(dim, dtype=bool)
+    mask[idx] = False
+    return np.flatnonzero(mask)
+
+
 def _readonly(array: np.ndarray) -> np.ndarray:
     array.setflags(write=False)
     return array
@@ -622,9 +653,12 @@ class Canonical:
             )
         if mu.size == 0:
             return cls(np.zeros((0, 0)), np.zeros(0))
-        factor = (cholesky(Sigma, "Canonical.from_moments covariance"), True)
-        K = scipy.linalg.cho_solve(factor, np.eye(mu.size))
-        h = scipy.linalg.cho_solve(factor, mu)
+        lower = cholesky(Sigma, "Canonical.from_moments covariance")  # checked: finite
+        K = cho_solve_finite(lower, np.eye(mu.size))
+        if np.isfinite(mu).all():
+            h = cho_solve_finite(lower, mu)
+        else:  # scipy's finiteness check raises its error
+            h = scipy.linalg.cho_solve((lower, True), mu)
         return cls(K, h)
 
     @classmethod
@@ -645,9 +679,9 @@ class Canonical:
         """
         if self.dim == 0:
             return np.zeros(0), np.zeros((0, 0))
-        factor = (cholesky(self.K, "Canonical information matrix K"), True)
-        Sigma = symmetrize(scipy.linalg.cho_solve(factor, np.eye(self.dim)))
-        mu = scipy.linalg.cho_solve(factor, self.h)
+        factor = cholesky(self.K, "Canonical information matrix K")
+        Sigma = symmetrize(cho_solve_finite(factor, np.eye(self.dim)))
+        mu = cho_solve_finite(factor, self.h)  # K and h are finite (checked on construction)
         return mu, Sigma
 
     def marginalize(self, keep: Sequence[int] | np.ndarray) -> Canonical:
@@ -661,15 +695,15 @@ class Canonical:
         raised.
         """
         k = _index_array(keep, self.dim, "Canonical.marginalize")
-        m = np.setdiff1d(np.arange(self.dim), k)
-        K_kk = self.K[np.ix_(k, k)]
+        m = _complement(k, self.dim)
+        K_kk = self.K[k[:, None], k]  # np.ix_(k, k) without its overhead
         h_k = self.h[k]
         if m.size == 0:
             return Canonical(K_kk, h_k)
-        K_mm = self.K[np.ix_(m, m)]
-        rhs = np.column_stack([self.K[np.ix_(m, k)], self.h[m]])
+        K_mm = self.K[m[:, None], m]
+        rhs = np.column_stack([self.K[m[:, None], k], self.h[m]])
         solution = _solve_psd(K_mm, rhs, "Canonical.marginalize block K_mm")
-        K_km = self.K[np.ix_(k, m)]
+        K_km = self.K[k[:, None], m]
         correction = K_km @ solution
         return Canonical(K_kk - correction[:, :-1], h_k - correction[:, -1])
 
@@ -685,8 +719,8 @@ class Canonical:
                 f"Canonical.condition: {i.size} indices but {values.size} values given"
             )
         _check_finite(values, "Canonical.condition values")
-        r = np.setdiff1d(np.arange(self.dim), i)
-        return Canonical(self.K[np.ix_(r, r)], self.h[r] - self.K[np.ix_(r, i)] @ values)
+        r = _complement(i, self.dim)
+        return Canonical(self.K[r[:, None], r], self.h[r] - self.K[r[:, None], i] @ values)
 
     def transform(self, F: np.ndarray, offset: np.ndarray | None = None) -> Canonical:
         """Express the density in a new state ``x_new`` with ``x_old = F x_new + offset``.
@@ -738,7 +772,7 @@ def _solve_psd(A: np.ndarray, B: np.ndarray, name: str) -> np.ndarray:
     (relative residual below ``1e4 eps``), otherwise raises NotPositiveDefiniteError.
     """
     try:
-        return scipy.linalg.cho_solve((np.linalg.cholesky(A), True), B)
+        return cho_solve_finite(np.linalg.cholesky(A), B)  # blocks of a finite Canonical
     except np.linalg.LinAlgError:
         pass
     eigenvalues, eigenvectors = np.linalg.eigh(A)

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vslam_gym.slam.geometry import check_pose, wrap_angle
+from vslam_gym.slam.geometry import check_pose, stack_last, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 
 __all__ = [
@@ -208,7 +208,7 @@ class PoseBound:
 
     def __post_init__(self) -> None:
         w = np.asarray(self.whitening, dtype=float)
-        if w.shape != (3, 3) or not np.all(np.isfinite(w)):
+        if w.shape != (3, 3) or not np.isfinite(w).all():
             raise ValueError(f"PoseBound.whitening must be a finite (3, 3) matrix, got {w!r}")
         if not self.limit >= 0.0:
             raise ValueError(f"PoseBound.limit must be >= 0, got {self.limit!r}")
@@ -234,7 +234,7 @@ def _check_points(points: object) -> np.ndarray:
         raise ValueError("points must be a numeric (n, 2) array") from exc
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(f"points must have shape (n, 2) [m], got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
         raise ValueError(f"points contain NaN or inf at rows {bad[:5].tolist()}")
     return arr
@@ -245,7 +245,7 @@ def _check_model(model: object) -> LandmarkModel:
         raise ValueError(f"model must be a LandmarkModel, got {type(model).__name__}")
     if model.n_lines < 1:
         raise ValueError(f"model must have at least one line, got {model.n_vertices} vertices")
-    if not np.all(np.isfinite(model.mean)):
+    if not np.isfinite(model.mean).all():
         raise ValueError("model vertex means must be finite")
     return model
 
@@ -287,9 +287,12 @@ class _Lines:
     index: np.ndarray | None = None
 
     def __init__(self, model: LandmarkModel) -> None:
-        idx = model.line_vertices()
-        a = model.mean[idx[:, 0]]
-        ab = model.mean[idx[:, 1]] - a
+        # Line j joins vertices j and j + 1 (a closed polygon's last one: k - 1 and 0), as
+        # model.line_vertices(): its ends by slicing instead of fancy indexing.
+        mean, n = model.mean, model.n_lines
+        a = mean[:n]
+        b = np.concatenate([mean[1:], mean[:1]]) if model.closed else mean[1 : n + 1]
+        ab = b - a
         self.ax, self.ay = a[:, 0].copy(), a[:, 1].copy()
         self.abx, self.aby = ab[:, 0].copy(), ab[:, 1].copy()
         length2 = self.abx * self.abx + self.aby * self.aby
@@ -894,7 +897,7 @@ class _Batch:
 
     def sums(self, columns: list[np.ndarray]) -> np.ndarray:
         """``(A, len(columns))``: each ``(T,)`` column summed over every alignment's points."""
-        return np.add.reduceat(np.stack(columns, axis=1), self.starts, axis=0)
+        return np.add.reduceat(stack_last(*columns), self.starts, axis=0)
 
     def keep(self, running: np.ndarray) -> None:
         """Keep only the alignments where ``running`` ``(A,)`` is True."""
@@ -1152,7 +1155,7 @@ def _step(batch, act, go, running, stop, sums, nx, ny, e, kf, state, pose0, conf
     s = batch.sums(columns)
     rhs = -s[:, :3]
     # H = sum J_i^T J_i (4.3.10): the thesis form, and the point-to-line fallback.
-    thesis = np.stack([used, np.zeros_like(used), -s[:, 4], used, s[:, 3], s[:, 5]], axis=1)
+    thesis = stack_last(used, np.zeros_like(used), -s[:, 4], used, s[:, 3], s[:, 5])
     if config.point_to_line:  # H = sum a_i^T a_i, both forms solved in one call
         both, ok_both = _solve_spd3_many(
             np.concatenate([s[:, 6:12], thesis]), np.concatenate([rhs, rhs]), config.max_condition
@@ -1210,7 +1213,7 @@ def object_radius(model: LandmarkModel, reference: np.ndarray, unknown_threshold
     """
     model = _check_model(model)
     ref = np.asarray(reference, dtype=float)
-    if ref.shape != (2,) or not np.all(np.isfinite(ref)):
+    if ref.shape != (2,) or not np.isfinite(ref).all():
         raise ValueError(f"reference must be a finite (2,) point [m], got {ref!r}")
     idx = model.line_vertices()[model.u <= unknown_threshold]
     vertices = model.mean[np.unique(idx)] if idx.size else model.mean
@@ -1254,7 +1257,7 @@ def candidate_landmarks(
         raise ValueError(f"references must have shape (L, 2), got {refs.shape}")
     if r.shape != (refs.shape[0],):
         raise ValueError(f"radii must have shape ({refs.shape[0]},), got {r.shape}")
-    if not (np.all(np.isfinite(c)) and np.all(np.isfinite(refs)) and np.all(np.isfinite(r))):
+    if not (np.isfinite(c).all() and np.isfinite(refs).all() and np.isfinite(r).all()):
         raise ValueError("centroid, references and radii must be finite")
     if np.any(r < 0):
         raise ValueError(f"radii must be >= 0, got {r[r < 0][:3]}")

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vslam_gym.slam.geometry import stack_last
+
 
 @dataclass
 class LandmarkModel:
@@ -43,6 +45,20 @@ class LandmarkModel:
         if self.u.size != self.n_lines:
             raise ValueError(f"u must have {self.n_lines} entries, got {self.u.size}")
 
+    @classmethod
+    def _trusted(
+        cls, mean: np.ndarray, cov: np.ndarray, u: np.ndarray, closed: bool
+    ) -> LandmarkModel:
+        """A model of arrays already in form, stored as given (no conversion, no checks).
+
+        For internal hot paths rebuilding a model from data that a checked construction
+        accepted before: float ``(k, 2)`` means, ``(2k, 2k)`` covariance and
+        ``(n_lines,)`` ``u``.
+        """
+        model = object.__new__(cls)
+        model.mean, model.cov, model.u, model.closed = mean, cov, u, closed
+        return model
+
     @property
     def n_vertices(self) -> int:
         """Number of vertices ``k``."""
@@ -57,7 +73,7 @@ class LandmarkModel:
     def line_vertices(self) -> np.ndarray:
         """``(n_lines, 2)`` int: the vertex indices ``(a, b)`` of each line."""
         j = np.arange(self.n_lines)
-        return np.stack([j, (j + 1) % self.n_vertices], axis=1)
+        return stack_last(j, (j + 1) % self.n_vertices)
 
     def vertex_cov(self, i: int) -> np.ndarray:
         """``(2, 2)`` covariance of vertex ``i`` [m^2]."""

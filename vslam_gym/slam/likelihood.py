@@ -23,6 +23,7 @@ import numpy as np
 from scipy import special
 
 from vslam_gym.slam.config import ModelConfig
+from vslam_gym.slam.geometry import stack_last
 
 if TYPE_CHECKING:
     from vslam_gym.slam.gaussian import Linearization
@@ -70,7 +71,7 @@ def _finite(name: str, value: object) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name} must be numeric, got {value!r}") from exc
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite, got non-finite values in {arr!r}")
     return arr
 
@@ -219,9 +220,9 @@ def range_error_jacobian(inputs: np.ndarray, pose: np.ndarray) -> np.ndarray:
     r_exp = _divide(numerator, denominator)
     # dN/d[v_ax, v_ay, v_bx, v_by]: N = cross(v_b - x_pos, v_a - x_pos).
     bx, by = v_b[..., 0] - pose[..., 0], v_b[..., 1] - pose[..., 1]
-    dn = np.stack([-by, bx, ay, -ax], axis=-1)
+    dn = stack_last(-by, bx, ay, -ax)
     # dD/d[v_ax, v_ay, v_bx, v_by]: D = cos(a) dv_y - sin(a) dv_x.
-    dd = np.stack([-sin_a, cos_a, sin_a, -cos_a], axis=-1)
+    dd = stack_last(-sin_a, cos_a, sin_a, -cos_a)
     with np.errstate(divide="ignore", invalid="ignore"):
         d_phi = numerator * (cos_a * dvx + sin_a * dvy) / denominator**2
         d_v = (dn - r_exp[..., None] * dd) / denominator[..., None]
@@ -740,7 +741,7 @@ def detection_statistics(d2: np.ndarray) -> tuple[float, float]:
         raise ValueError("d2 must hold at least one value")
     if np.any(np.isnan(arr)) or np.any(arr < 0.0):
         raise ValueError(f"d2 must be >= 0 and not NaN, got {arr!r}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         return float("inf"), float("inf")
     return float(np.mean(arr)), float(np.var(arr))
 

@@ -22,7 +22,7 @@ def check_increments(u: np.ndarray) -> np.ndarray:
         raise ValueError(
             f"odometry increments must have shape (3,) [rot1, trans, rot2], got {arr.shape}"
         )
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f"odometry increments must be finite, got {arr}")
     return arr
 

@@ -102,7 +102,7 @@ def covariance_ellipse(
         raise ValueError(f"mean must have shape (2,), got {mean.shape}")
     if cov.shape != (2, 2):
         raise ValueError(f"cov must have shape (2, 2), got {cov.shape}")
-    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+    if not (np.isfinite(mean).all() and np.isfinite(cov).all()):
         raise ValueError(f"mean and cov must be finite, got mean={mean}, cov={cov.tolist()}")
     if not (np.isfinite(n_sigma) and n_sigma > 0):
         raise ValueError(f"n_sigma must be finite and > 0, got {n_sigma!r}")

@@ -54,11 +54,11 @@ class Scan:
             raise ScanError(f"ranges has {r.size} beams but bearings has {phi.size}")
         if r.size < min_beams:
             raise ScanError(f"a scan needs at least {min_beams} beams, got {r.size}")
-        if not np.all(np.isfinite(r)):
+        if not np.isfinite(r).all():
             raise ScanError(
                 f"ranges contain NaN or inf at beams {np.flatnonzero(~np.isfinite(r))[:5]}"
             )
-        if not np.all(np.isfinite(phi)):
+        if not np.isfinite(phi).all():
             raise ScanError(
                 f"bearings contain NaN or inf at beams {np.flatnonzero(~np.isfinite(phi))[:5]}"
             )

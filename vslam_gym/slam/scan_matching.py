@@ -620,10 +620,10 @@ def match_scan_why(
     config = config or local_map.config
     prior = check_pose(prior)
     points = np.asarray(points, dtype=float)
-    if points.ndim != 2 or points.shape[1] != 2 or not np.all(np.isfinite(points)):
+    if points.ndim != 2 or points.shape[1] != 2 or not np.isfinite(points).all():
         raise ValueError(f"points must be a finite (m, 2) array [m], got shape {points.shape}")
     prior_cov = np.asarray(prior_cov, dtype=float)
-    if prior_cov.shape != (3, 3) or not np.all(np.isfinite(prior_cov)):
+    if prior_cov.shape != (3, 3) or not np.isfinite(prior_cov).all():
         raise ValueError(f"prior_cov must be a finite (3, 3) array, got shape {prior_cov.shape}")
     prior_cov = 0.5 * (prior_cov + prior_cov.T)
     if np.linalg.eigvalsh(prior_cov)[0] < -PSD_TOLERANCE * max(np.abs(prior_cov).max(), 1.0):
@@ -710,6 +710,6 @@ def _covariance(
     except np.linalg.LinAlgError:
         return None
     cov = 0.5 * (cov + cov.T) + np.diag(np.asarray(config.sigma_floor, dtype=float) ** 2)
-    if not np.all(np.isfinite(cov)) or np.linalg.eigvalsh(cov)[0] <= 0:
+    if not np.isfinite(cov).all() or np.linalg.eigvalsh(cov)[0] <= 0:
         return None
     return cov

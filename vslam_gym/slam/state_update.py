@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from vslam_gym.slam.gaussian import Canonical, cholesky, symmetrize
-from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.gaussian import Canonical, cho_solve_finite, cholesky, symmetrize
+from vslam_gym.slam.geometry import stack_last, wrap_angle
 
 POSE_DIM = 3
 REF_DIM = 2
@@ -51,7 +51,7 @@ def rotation_columns(vertices: np.ndarray, centre: np.ndarray) -> np.ndarray:
     ``A_vr`` that belongs to a landmark frame's heading.
     """
     d = np.asarray(vertices, dtype=float).reshape(-1, 2) - np.asarray(centre, dtype=float)[:2]
-    return np.stack([-d[:, 1], d[:, 0]], axis=1).reshape(-1)
+    return stack_last(-d[:, 1], d[:, 0]).reshape(-1)
 
 
 def pose_measurement_update(
@@ -141,8 +141,8 @@ class LandmarkConditional:
         big = np.zeros((2 * k, 2 * k))
         old = np.flatnonzero(source >= 0)
         if old.size:
-            rows_new = np.stack([2 * old, 2 * old + 1], axis=1).reshape(-1)
-            rows_old = np.stack([2 * source[old], 2 * source[old] + 1], axis=1).reshape(-1)
+            rows_new = stack_last(2 * old, 2 * old + 1).reshape(-1)
+            rows_old = stack_last(2 * source[old], 2 * source[old] + 1).reshape(-1)
             a[rows_new] = self.A[rows_old]
             b[rows_new] = self.b[rows_old]
             big[np.ix_(rows_new, rows_new)] = cov[np.ix_(rows_old, rows_old)]
@@ -163,7 +163,7 @@ class LandmarkConditional:
         ``K'^-1 S^T K_keep (A_keep r + b_keep)``.
         """
         keep = np.asarray(keep, dtype=int)
-        rows = np.stack([2 * keep, 2 * keep + 1], axis=1).reshape(-1)
+        rows = stack_last(2 * keep, 2 * keep + 1).reshape(-1)
         k_keep = symmetrize(np.linalg.inv(self.covariance()[np.ix_(rows, rows)]))
         k_new = symmetrize(subst.T @ k_keep @ subst)
         proj = np.linalg.solve(k_new, subst.T @ k_keep)
@@ -264,9 +264,9 @@ def _conditional_v_given_r(local: Canonical, d: int) -> LandmarkConditional:
     m = local.marginalize(keep)
     r, v = np.arange(d), np.arange(d, m.dim)
     k8 = m.K[np.ix_(v, v)]
-    chol = (np.linalg.cholesky(k8), True)
-    a8 = -scipy.linalg.cho_solve(chol, m.K[np.ix_(v, r)])
-    b8 = scipy.linalg.cho_solve(chol, m.h[v])
+    chol = np.linalg.cholesky(k8)  # of a finite Canonical's block: finite
+    a8 = -cho_solve_finite(chol, m.K[np.ix_(v, r)])
+    b8 = cho_solve_finite(chol, m.h[v])
     return LandmarkConditional(A=a8, b=b8, K=symmetrize(k8))
 
 
@@ -351,10 +351,10 @@ def state_space_update(
         )
     else:
         lam_rr = lam[3:, 3:]
-        chol = (np.linalg.cholesky(lam_rr), True)
-        c_mat = -scipy.linalg.cho_solve(chol, lam[3:, :3])  # r | x = C x + c + e
-        c_vec = scipy.linalg.cho_solve(chol, eta[3:])
-        e_cov = scipy.linalg.cho_solve(chol, np.eye(d))
+        chol = np.linalg.cholesky(lam_rr)  # lam, eta: a finite Canonical's
+        c_mat = -cho_solve_finite(chol, lam[3:, :3])  # r | x = C x + c + e
+        c_vec = cho_solve_finite(chol, eta[3:])
+        e_cov = cho_solve_finite(chol, np.eye(d))
         lam_x = lam[:3, :3] + lam[:3, 3:] @ c_mat
         eta_x = eta[:3] - lam[:3, 3:] @ c_vec
         mu_x, sigma_x = _woodbury(mu, sigma, pose, symmetrize(lam_x), eta_x)

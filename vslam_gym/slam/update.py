@@ -401,7 +401,7 @@ def _check_inputs(
         raise ValueError(f"scan must be a Scan, got {type(scan).__name__}")
     if model.n_lines < 1:
         raise ValueError(f"model must have at least one line, got {model.n_vertices} vertices")
-    if not (np.all(np.isfinite(model.mean)) and np.all(np.isfinite(model.cov))):
+    if not (np.isfinite(model.mean).all() and np.isfinite(model.cov).all()):
         raise ValueError("model mean and covariance must be finite")
     for name, value in (("first", first), ("last", last)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
@@ -412,7 +412,7 @@ def _check_inputs(
     if not np.all(scan.returns[first : last + 1]):
         raise ValueError(f"segment {first}..{last} includes no-return (max-range) beams")
     pose = np.array(pose, dtype=float).reshape(-1)
-    if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+    if pose.shape != (3,) or not np.isfinite(pose).all():
         raise ValueError(f"pose must be 3 finite numbers [x, y, theta], got {pose}")
     return first, last, pose
 
