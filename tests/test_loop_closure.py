@@ -116,6 +116,37 @@ def test_a_match_with_most_points_as_inliers_may_lie_farther_from_the_prediction
         assert other.match(scan, predicted, GATE_COV, now=100) is None
 
 
+def test_a_correction_moves_the_keyframes_made_since_the_matched_ones_by_a_growing_fraction():
+    config = ScanMatcherConfig(revisit_radius=3.0, keyframe_distance=0.5, keyframe_heading_deg=15.0)
+    keyframes = RevisitKeyframes(config, min_age=3)
+    rng = np.random.default_rng(2)
+    poses = [np.array([0.6 * i, -1.0, 0.05 * i]) for i in range(6)]  # stamps 0, 2, ..., 10
+    for i, pose in enumerate(poses):
+        assert keyframes.add_keyframe(scan_at(pose, rng), pose, np.eye(3), 2 * i)
+    points = [p.copy() for p in keyframes._points]
+    keyframes.now = 12
+    assert keyframes.reference(np.array([0.0, -1.0])) is not None  # stamps 0..8 near
+    before, after = np.array([5.0, 1.0, 0.3]), np.array([4.6, 1.2, 0.2])
+    assert keyframes.correct_since(4, 12, before, after) == 3  # stamps 6, 8, 10
+    assert keyframes._selection == () and keyframes._reference is None
+    for i in range(3):  # stamps 0, 2, 4: untouched
+        np.testing.assert_array_equal(keyframes._poses[i], poses[i])
+        np.testing.assert_array_equal(keyframes._points[i], points[i])
+    for i, fraction in ((3, 0.25), (4, 0.5), (5, 0.75)):
+        expected = poses[i] + fraction * (after - before)
+        np.testing.assert_allclose(keyframes._poses[i], expected, atol=1e-12)
+        # the points move rigidly with their keyframe's pose
+        lidar = (points[i] - poses[i][:2]) @ _rotation(poses[i][2])
+        world = lidar @ _rotation(expected[2]).T + expected[:2]
+        np.testing.assert_allclose(keyframes._points[i], world, atol=1e-12)
+    assert keyframes.correct_since(12, 12, before, after) == 0
+
+
+def _rotation(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
 def test_sigma_floor_widens_the_measurement_and_cooldown_skips_matches():
     loop, rng = _closure()
     floored, _ = _closure(sigma_floor=(0.05, 0.05, 0.01))
@@ -161,6 +192,13 @@ def test_loop_closure_fuses_revisits_and_keeps_the_state_positive_definite():
     assert not any(b.loop_closed for b in off)
 
 
+def test_corrected_keyframes_still_close_the_loop():
+    slam, beliefs, true = _drive(True, loop_correct_keyframes="time")
+    assert any(b.loop_closed for b in beliefs)
+    assert np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2])) < 0.1
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+
+
 def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
     _, every, _ = _drive(True)
     _, some, _ = _drive(True, loop_min_innovation=0.5)
@@ -183,6 +221,7 @@ def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
         ({"loop_sigma_floor": (0.1, -0.1, 0.0)}, "loop_sigma_floor"),
         ({"loop_strong_inlier_fraction": -0.1}, "loop_strong_inlier_fraction"),
         ({"loop_strong_max_mahalanobis": float("nan")}, "loop_strong_max_mahalanobis"),
+        ({"loop_correct_keyframes": "all"}, "loop_correct_keyframes must be one of"),
     ],
 )
 def test_loop_closure_options_are_validated(overrides, match):

@@ -94,6 +94,58 @@ class RevisitKeyframes(LocalMap):
         close = old[order[dist[order] <= self.config.revisit_radius]]
         return tuple(sorted(close[: self.config.revisit_max_keyframes].tolist()))
 
+    def correct_since(
+        self,
+        since: int,
+        now: int,
+        before: np.ndarray,
+        after: np.ndarray,
+        spread: str = "time",
+        now_cov: np.ndarray | None = None,
+    ) -> int:
+        """Carry a fraction of a pose correction over to the keyframes after ``since``.
+
+        A keyframe stamped ``s > since`` is assumed to carry a fraction ``f`` of the error
+        that the correction ``before -> after`` (lidar poses, map frame) removed from the
+        current pose (a drift growing along the loop): its pose moves by
+        ``f (after - before)`` (heading wrapped), its points and normals turn with it
+        about its position. ``spread`` sets ``f``: ``"time"``, ``(s - since) / (now -
+        since)``; ``"variance"``, the share of the position variance (trace) grown
+        between the keyframe stamped ``since`` and ``now_cov`` ``(3, 3)`` (the current
+        pose's before the correction) that had grown by the keyframe's (``"time"``
+        when it did not grow). ``f`` is clipped to ``[0, 1]``. Returns the number of
+        keyframes moved.
+        """
+        if now <= since:
+            return 0
+        delta = np.asarray(after, dtype=float) - np.asarray(before, dtype=float)
+        delta[2] = wrap_angle(delta[2])
+        later = [i for i, stamp in enumerate(self._stamps) if stamp > since]
+        fractions = [(self._stamps[i] - since) / (now - since) for i in later]
+        if spread == "variance" and now_cov is not None:
+            start = max((i for i, stamp in enumerate(self._stamps) if stamp <= since), default=None)
+            v0 = 0.0 if start is None else float(np.trace(self._covs[start][:2, :2]))
+            grown = float(np.trace(np.asarray(now_cov)[:2, :2])) - v0
+            if grown > 0.0:
+                fractions = [(float(np.trace(self._covs[i][:2, :2])) - v0) / grown for i in later]
+        for i, fraction in zip(later, fractions, strict=True):
+            step = min(max(fraction, 0.0), 1.0) * delta
+            pose = self._poses[i]
+            c, s = np.cos(step[2]), np.sin(step[2])
+            turn = np.array([[c, s], [-s, c]])  # row vectors: v @ turn = R(step) v
+            self._points[i] = (self._points[i] - pose[:2]) @ turn + pose[:2] + step[:2]
+            self._normals[i] = self._normals[i] @ turn
+            self._poses[i] = np.array(
+                [pose[0] + step[0], pose[1] + step[1], float(wrap_angle(pose[2] + step[2]))]
+            )
+        if later:
+            self._reference, self._selection = None, ()
+        return len(later)
+
+    def selected_stamp(self) -> int:
+        """The newest stamp among the keyframes of the last reference."""
+        return max(self._stamps[i] for i in self._selection)
+
     def selected_covariance(self) -> np.ndarray:
         """Mean pose covariance ``(3, 3)`` of the keyframes of the last reference."""
         return np.mean([self._covs[i] for i in self._selection], axis=0)
@@ -228,6 +280,26 @@ class LoopClosure:
         if inlier_fraction >= self.strong_inlier_fraction:
             return max(self.max_mahalanobis, self.strong_max_mahalanobis)
         return self.max_mahalanobis
+
+    def correct_keyframes(
+        self,
+        before: np.ndarray,
+        after: np.ndarray,
+        spread: str = "time",
+        before_cov: np.ndarray | None = None,
+    ) -> int:
+        """Spread the correction of a fused match over the keyframes made since its own.
+
+        The keyframes newer than those the last match was made against were placed
+        during the drift the match removed; :meth:`RevisitKeyframes.correct_since` moves
+        them by a growing fraction of it (``spread``, ``before_cov``: see there), so that
+        a later revisit there does not pull the pose back into the drifted frame. Returns
+        the number of keyframes moved.
+        """
+        keyframes = self.keyframes
+        return keyframes.correct_since(
+            keyframes.selected_stamp(), keyframes.now, before, after, spread, before_cov
+        )
 
     def add(self, points: np.ndarray, pose: np.ndarray, cov: np.ndarray, now: int) -> bool:
         """Keep the scan as a keyframe at the updated ``pose`` (cov ``(3, 3)``)."""
