@@ -142,6 +142,29 @@ def test_a_correction_moves_the_keyframes_made_since_the_matched_ones_by_a_growi
     assert keyframes.correct_since(12, 12, before, after) == 0
 
 
+def test_the_variance_spread_moves_a_keyframe_by_its_share_of_the_grown_variance():
+    config = ScanMatcherConfig(revisit_radius=3.0, keyframe_distance=0.5, keyframe_heading_deg=15.0)
+    keyframes = RevisitKeyframes(config, min_age=3)
+    rng = np.random.default_rng(3)
+    variances = [0.01, 0.01, 0.02, 0.05]  # per keyframe, position variance per axis [m^2]
+    for i, var in enumerate(variances):
+        pose = np.array([0.6 * i, -1.0, 0.0])
+        assert keyframes.add_keyframe(scan_at(pose, rng), pose, var * np.eye(3), i)
+    poses = [p.copy() for p in keyframes._poses]
+    before, after = np.array([3.0, 0.0, 0.0]), np.array([2.0, 0.5, 0.1])
+    now_cov = 0.09 * np.eye(3)  # grown by 2 (0.09 - 0.01) since stamp 1
+    assert keyframes.correct_since(1, 4, before, after, "variance", now_cov) == 2
+    for i, fraction in ((2, 0.125), (3, 0.5)):  # (0.02 - 0.01) / 0.08, (0.05 - 0.01) / 0.08
+        np.testing.assert_allclose(keyframes._poses[i], poses[i] + fraction * (after - before))
+    # no variance grown: the time spread
+    flat = RevisitKeyframes(config, min_age=3)
+    for i in range(4):
+        pose = np.array([0.6 * i, -1.0, 0.0])
+        flat.add_keyframe(scan_at(pose, rng), pose, 0.01 * np.eye(3), i)
+    flat.correct_since(1, 4, before, after, "variance", 0.01 * np.eye(3))
+    np.testing.assert_allclose(flat._poses[3], poses[3] + (2 / 3) * (after - before))
+
+
 def _rotation(theta: float) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
     return np.array([[c, -s], [s, c]])
