@@ -140,6 +140,8 @@ def test_a_correction_moves_the_keyframes_made_since_the_matched_ones_by_a_growi
         world = lidar @ _rotation(expected[2]).T + expected[:2]
         np.testing.assert_allclose(keyframes._points[i], world, atol=1e-12)
     assert keyframes.correct_since(12, 12, before, after) == 0
+    loop, _ = _closure()
+    assert loop.correct_keyframes(before, after) == 0  # no match made yet
 
 
 def test_the_variance_spread_moves_a_keyframe_by_its_share_of_the_grown_variance():

@@ -297,6 +297,8 @@ class LoopClosure:
         the number of keyframes moved.
         """
         keyframes = self.keyframes
+        if not keyframes._selection:  # no match was made: nothing to spread
+            return 0
         return keyframes.correct_since(
             keyframes.selected_stamp(), keyframes.now, before, after, spread, before_cov
         )
