@@ -783,12 +783,11 @@ class VertexSLAM:
             mu, sigma = pose_measurement_update(self._mu, self._sigma, found.pose, found.cov)
         except np.linalg.LinAlgError:  # degenerate numbers: not fused
             return False
-        before, before_cov = self._mu[:3].copy(), self._sigma[:3, :3].copy()
+        spread = self.config.filter.loop_correct_keyframes
+        if spread != "none":  # the keyframes take a share of the pose's correction
+            self._loop.correct_keyframes(self._mu[:3], mu[:3], spread, self._sigma[:3, :3])
         self._mu, self._sigma = mu, sigma
         self._loop.fused(self._measurements)
-        spread = self.config.filter.loop_correct_keyframes
-        if spread != "none":
-            self._loop.correct_keyframes(before, self._mu[:3], spread, before_cov)
         return True
 
     # ------------------------------------------------------------------ measurement
