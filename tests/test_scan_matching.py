@@ -119,6 +119,32 @@ def test_normals_are_perpendicular_to_a_wall_and_keyframes_are_bounded():
     assert len(local) == 2
 
 
+def test_normals_match_a_per_point_fit_and_can_be_passed_to_the_map():
+    config = ScanMatcherConfig()
+    pts = _points(np.array([1.0, 0.5, 0.3]), L_ROOM, 3)
+    normals, valid = scan_normals(pts, config)
+    assert 0.5 < valid.mean() < 1.0
+    # each valid normal is the first window (of normal_half_windows) that qualifies
+    for i in np.flatnonzero(valid)[::7]:
+        for w in config.normal_half_windows:
+            if i < w or i >= len(pts) - w:
+                continue
+            patch = pts[i - w : i + w + 1]
+            spread = np.linalg.eigvalsh(np.cov(patch.T, bias=True))
+            near = np.hypot(*(patch - pts[i]).T).max() <= config.normal_max_radius
+            wide = spread[1] >= (0.5 * config.normal_min_extent) ** 2
+            if near and wide and spread[0] <= config.normal_max_flatness * spread[1]:
+                _, vectors = np.linalg.eigh(np.cov(patch.T, bias=True))
+                assert abs(abs(vectors[:, 0] @ normals[i]) - 1.0) < 1e-9
+                break
+    # normals computed once and passed in build the same keyframe
+    a, b = LocalMap(config), LocalMap(config)
+    pose = np.array([0.2, -0.1, 0.4])
+    assert a.add(pts, pose) and b.add(pts, pose, (normals, valid))
+    for x, y in zip(a.reference()[1:], b.reference()[1:], strict=True):
+        assert np.array_equal(x, y)
+
+
 def test_keyframes_by_motion_and_older_keyframes_near_the_prior():
     pts = _points(np.array([0.0, 0.0, 0.0]), CORRIDOR, 0)
     local = LocalMap(ScanMatcherConfig(keyframe_distance=0.5, keyframe_heading_deg=10.0))

@@ -78,6 +78,7 @@ from vslam_gym.slam.scan_matching import (
     LocalMap,
     ScanMatcherConfig,
     match_scan,
+    scan_normals,
     scan_points,
 )
 from vslam_gym.slam.segmentation import segment_scan
@@ -547,6 +548,7 @@ class VertexSLAM:
         self._step_ms = 0.0
         self._local_map = LocalMap(self.config.matcher)
         self._matcher_pose = self._mu[:3].copy()  # "odometry": pose in the matcher's frame
+        self._normals: tuple[np.ndarray, np.ndarray] | None = None  # the step's scan normals
         self._loop = self._make_loop_closure()
         self._loop_closed = False
         self._prealigned = False
@@ -614,6 +616,7 @@ class VertexSLAM:
         """The motion and measurement updates of :meth:`step` on validated inputs."""
         mode = self.config.filter.prealign
         points = None  # the scan's lidar-frame points, for the whole-scan matcher
+        self._normals = None  # their normals, once computed (both keyframe maps use them)
         if mode != "none":
             points = scan_points(scan.ranges, scan.bearings, scan.max_range)
         if mode == "none":
@@ -640,7 +643,9 @@ class VertexSLAM:
                 self._pruned = self._prune_covered()
             self._measured_at = self._mu[:3].copy()
             if self._loop is not None:
-                self._loop.add(points, self._mu[:3], self._sigma[:3, :3], self._measurements)
+                self._loop.add(
+                    points, self._mu[:3], self._sigma[:3, :3], self._measurements, self._normals
+                )
         else:
             self._decisions = ()
         if mode == "fuse":
@@ -715,7 +720,9 @@ class VertexSLAM:
             cov = to_map.T @ result.cov @ to_map
         self._mu, self._sigma = relative_motion_update(self._mu, self._sigma, delta, cov)
         self._matcher_pose = compose(self._matcher_pose, delta)
-        self._local_map.add(points, self._matcher_pose)
+        if self._local_map.is_keyframe(self._matcher_pose):
+            self._normals = scan_normals(points, self.config.matcher)
+            self._local_map.add(points, self._matcher_pose, self._normals)
         return result is not None
 
     def _fuse_match(self, points: np.ndarray) -> bool:

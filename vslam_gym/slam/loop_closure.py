@@ -70,13 +70,19 @@ class RevisitKeyframes(LocalMap):
         self._covs.clear()
 
     def add_keyframe(
-        self, points: np.ndarray, pose: np.ndarray, cov: np.ndarray, stamp: int
+        self,
+        points: np.ndarray,
+        pose: np.ndarray,
+        cov: np.ndarray,
+        stamp: int,
+        normals: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> bool:
         """Add a scan's lidar-frame points ``(m, 2)`` seen from ``pose`` (cov ``(3, 3)``).
 
-        Returns whether it became a keyframe (moved or turned enough from the last).
+        ``normals``: as :meth:`LocalMap.add`. Returns whether it became a keyframe (moved
+        or turned enough from the last).
         """
-        if not self.add(points, pose):
+        if not self.add(points, pose, normals):
             return False
         self._stamps.append(int(stamp))
         self._covs.append(np.array(cov, dtype=float))
@@ -303,6 +309,16 @@ class LoopClosure:
             keyframes.selected_stamp(), keyframes.now, before, after, spread, before_cov
         )
 
-    def add(self, points: np.ndarray, pose: np.ndarray, cov: np.ndarray, now: int) -> bool:
-        """Keep the scan as a keyframe at the updated ``pose`` (cov ``(3, 3)``)."""
-        return self.keyframes.add_keyframe(points, pose, cov, now)
+    def add(
+        self,
+        points: np.ndarray,
+        pose: np.ndarray,
+        cov: np.ndarray,
+        now: int,
+        normals: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> bool:
+        """Keep the scan as a keyframe at the updated ``pose`` (cov ``(3, 3)``).
+
+        ``normals``: as :meth:`LocalMap.add` (the matcher's configuration's ``normal_*``).
+        """
+        return self.keyframes.add_keyframe(points, pose, cov, now, normals)

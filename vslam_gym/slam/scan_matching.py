@@ -315,12 +315,12 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> tuple[np.ndar
     normals = np.zeros((m, 2))
     valid = np.zeros(m, dtype=bool)
     for w in config.normal_half_windows:
-        if m < 2 * w + 1:
+        rows = np.flatnonzero(~valid)  # still without a normal, the whole window inside
+        rows = rows[(rows >= w) & (rows < m - w)]
+        if rows.size == 0:
             break
-        idx = np.arange(m)[:, None] + np.arange(-w, w + 1)[None, :]
-        inside = np.all((idx >= 0) & (idx < m), axis=1)
-        nb = points[np.clip(idx, 0, m - 1)]  # (m, 2w+1, 2)
-        offset = nb - points[:, None, :]
+        nb = points[rows[:, None] + np.arange(-w, w + 1)[None, :]]  # (r, 2w+1, 2)
+        offset = nb - points[rows, None, :]
         close = np.all(np.hypot(offset[..., 0], offset[..., 1]) <= config.normal_max_radius, axis=1)
         d = nb - nb.mean(axis=1, keepdims=True)
         cxx = np.mean(d[..., 0] ** 2, axis=1)
@@ -331,10 +331,10 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> tuple[np.ndar
         large, small = half_trace + root, half_trace - root
         wide = large >= (0.5 * config.normal_min_extent) ** 2  # std of a uniform patch
         flat = small <= config.normal_max_flatness * large
-        ok = ~valid & inside & close & wide & flat
+        ok = close & wide & flat
         direction = 0.5 * np.arctan2(2.0 * cxy[ok], cxx[ok] - cyy[ok])  # principal axis
-        normals[ok] = np.stack([-np.sin(direction), np.cos(direction)], axis=1)
-        valid |= ok
+        normals[rows[ok]] = np.stack([-np.sin(direction), np.cos(direction)], axis=1)
+        valid[rows[ok]] = True
     return normals, valid
 
 
@@ -387,15 +387,27 @@ class LocalMap:
         turned = abs(float(wrap_angle(pose[2] - last[2])))
         return moved >= cfg.keyframe_distance or turned >= np.deg2rad(cfg.keyframe_heading_deg)
 
-    def add(self, points: np.ndarray, pose: np.ndarray) -> bool:
+    def add(
+        self,
+        points: np.ndarray,
+        pose: np.ndarray,
+        normals: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> bool:
         """Add a scan's lidar-frame points ``(m, 2)`` [m] seen from ``pose`` (map frame).
+
+        Args:
+            points: ``(m, 2)`` the scan's returns in the lidar frame [m], beam order.
+            pose: ``(3,)`` the lidar pose in the map frame.
+            normals: ``scan_normals(points, config)`` when the caller has it already
+                (same ``normal_*`` parameters as this map's config); None: computed here,
+                only when the scan becomes a keyframe.
 
         Returns whether it became a keyframe.
         """
         pose = check_pose(pose)
         if not self.is_keyframe(pose):
             return False
-        normals, valid = scan_normals(points, self.config)
+        normals, valid = normals if normals is not None else scan_normals(points, self.config)
         if not np.any(valid):
             return False
         c, s = np.cos(pose[2]), np.sin(pose[2])
