@@ -197,9 +197,10 @@ def behaviour_clone(
     ``G`` the demonstration's discounted return (the value head then starts near the
     demonstrator's values, so that PPO's first updates do not undo the cloning). With
     ``normalize_value`` the value term is divided by ``var(G)``, so that it cannot swamp
-    the policy term whatever the reward scale. Off: the best PPO run (README, "Status";
-    coverage 0.183) cloned without it; the two runs with it, both with DAgger rounds, fell
-    to 0.092 and 0.126 under PPO (a comparison confounded by DAgger and the reward).
+    the policy term whatever the reward scale. Off: the best PPO run (docs/status.md,
+    "Exploration on random worlds"; coverage 0.183) cloned without it; the two runs with
+    it, both with DAgger rounds, fell to 0.092 and 0.126 under PPO (a comparison
+    confounded by DAgger and the reward).
 
     Args:
         model: a PPO model (``model.policy.evaluate_actions``).

@@ -259,8 +259,8 @@ def run_episode(
             (at most :data:`MAX_RANGE_PERTURBATION`; the simulation is unchanged). A
             value like ``1e-15`` changes the last bit of some ranges: the run is then
             another sample of the same filter's round-off, which is how the spread of
-            a configuration's figures is measured ("Status and known gaps" in the
-            README).
+            a configuration's figures is measured ("Accuracy and loop closing" in
+            docs/status.md).
 
     Returns:
         The episode log.

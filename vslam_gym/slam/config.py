@@ -230,7 +230,7 @@ class ModelConfig:
         """The faithful thesis configuration.
 
         The defaults differ from it where an evaluation measured an improvement
-        (``tests/test_creation.py``; figures in the README):
+        (``tests/test_creation.py``; figures in the README, "Presets"):
 
         - ``linearization="jacobian"``: first order agrees with the UT on every model
           (vertex means to 2 mm, standard deviations to 10 %) and is cheaper;
@@ -368,7 +368,7 @@ class FilterConfig:
             in ten associations of a set whose nearest tenth lay 0.1 m or more from the
             landmark joined two different obstacles. Measured at 0.1 m with
             ``candidate_near_sigma`` 3 (``vslam-gym evaluate``, seeds 0-9, ``house``
-            0-19 in three round-off samples; README, "Candidates a set lies on"):
+            0-19 in three round-off samples; docs/measurements.md, "Candidates a set lies on"):
             association precision ``house`` 0.757 -> 0.803, curved 0.975 -> 0.994;
             position ATE and final error level (``single_landmark`` final error 0.285
             -> 0.175 m); 12 % more ``house`` landmarks. 0.1 m by default; off in the
@@ -486,7 +486,7 @@ class FilterConfig:
             0.88, ATE 0.32 / 0.14 / 0.10 / 0.22 -> 0.28 / 0.14 / 0.10 / 0.45 m: the
             rejected sets become new landmarks (``house`` 157 -> 190). With the loop
             closure by revisits and the near-candidate test (2026-11-26, seeds 0-9,
-            ``house`` 0-19 in three round-off samples; README, "Candidates a set lies
+            ``house`` 0-19 in three round-off samples; docs/measurements.md, "Candidates a set lies
             on"), 0.3 measured better on ``house`` (position ATE 0.221-0.236 ->
             0.208-0.217 m, final error 0.063-0.154 -> 0.053-0.069 m, precision 0.80 ->
             0.87) and on the ``curved`` precision (0.994 -> 1.000), level elsewhere:
@@ -499,7 +499,7 @@ class FilterConfig:
             odometry under the landmark filter); ``"fuse"``: the scan is aligned to the
             last scans placed at the filter's pose estimates, and the aligned pose is
             fused as a direct pose measurement (``H = [I, 0]``) after the motion update.
-            Measured in the README ("Replaying a Carmen log").
+            Measured in docs/radish.md.
         creation_overlap_distance: an unmatched set is not made a new landmark when the
             median distance [m] of its points to the object lines of an aligned candidate
             landmark (at that candidate's ICP pose if it passed the gate, or at the
@@ -621,7 +621,7 @@ class FilterConfig:
             curved / house 0.213 / 0.131 / 0.102 / 0.293 -> 0.181 / 0.159 / 0.104 /
             0.225 m, ``house`` final error 0.462 -> 0.290 m, half the landmarks; but
             ``house`` seeds 10-19 ATE 0.331 -> 0.391 m and ``small`` worse: not the
-            default (README, "Covered duplicates").
+            default (docs/measurements.md, "Covered duplicates").
         prune_covered_fraction: see ``prune_covered_distance``; in ``(0, 1]``.
         prune_idle_steps: see ``prune_covered_distance``; >= 1.
         prune_merge: merge instead of only removing (the thesis's "merging landmarks of
@@ -664,7 +664,7 @@ class FilterConfig:
             / 0.439 -> 0.264 / 0.231; 18-19 of 20 seeds within 0.2 m in each of three
             round-off samples, 7-8 without); full Radish logs (``logs`` preset,
             synthetic seeds 0-4 / logged odometry): Intel 0.61 / 0.73 -> 0.58 / 0.68,
-            ACES 1.38 / 1.28 -> 0.94 / 1.30 (README, "Loop closure by revisits").
+            ACES 1.38 / 1.28 -> 0.94 / 1.30 (docs/measurements.md, "Loop closure by revisits").
         loop_radius: see ``loop_closure`` [m]; > 0.
         loop_min_age: see ``loop_closure`` (measurement updates); >= 1.
         loop_keyframe_distance: see ``loop_closure`` [m]; >= 0.
@@ -710,7 +710,7 @@ class FilterConfig:
             fails the test (ACES, logged odometry: back at the start 2 m and 3 degrees
             off at a heading standard deviation of 0.5 degrees, a match with 94 % of the
             scan's points as inliers lay 7.2 standard deviations away). Measured 0 ->
-            12 (0.8 inliers; README, "Loop closure by revisits"): ACES logged odometry
+            12 (0.8 inliers; docs/measurements.md, "Strong revisit matches"): ACES logged odometry
             position ATE 1.30 -> 1.04 m (final error 0.89 -> 0.28 m), synthetic seeds
             0-9 1.03 -> 1.02 m; Intel synthetic seeds 0-4 0.58 -> 0.54 m, logged 0.68
             -> 0.68 m; the simulated worlds and the 20 random worlds of ``frontier``
@@ -724,7 +724,8 @@ class FilterConfig:
             between them and now by half of it), ``"variance"`` (by the share of the
             position variance grown by then) or ``"none"`` (keyframes keep the poses they
             were made at). Measured (``logs`` preset, position ATE [m], seeds 0-4 mean /
-            logged; README, "Strong revisit matches"): Intel 0.54 / 0.68 -> 0.46 / 0.63
+            logged; docs/measurements.md, "Keyframe correction after a closure"): Intel
+            0.54 / 0.68 -> 0.46 / 0.63
             (``"time"``; ten seeds, median 0.53 -> 0.43) and 0.50 / 0.65
             (``"variance"``), ACES 0.94 / 1.04 -> 0.95 / 1.12 and 0.91 / 1.09; ``house``
             seeds 0-19 level; but on the random worlds, where a match is fused on most

@@ -116,8 +116,8 @@ class SlamConfig:
         model: landmark-model parameters (chapter 3).
         filter: filter parameters (chapter 4).
         icp: ICP parameters (4.3.4-4.3.16): point-to-line, with the association frozen
-            once it cycles (``IcpConfig.freeze_on_cycle``; measured in the README,
-            "Presets": level accuracy, 15-34 % less filter time per step).
+            once it cycles (``IcpConfig.freeze_on_cycle``; measured in
+            docs/measurements.md, "ICP cycles": level accuracy, 15-34 % less filter time per step).
         matcher: whole-scan matcher parameters (used when ``filter.prealign`` is not
             ``"none"``).
     """
@@ -162,7 +162,7 @@ class SlamConfig:
         information). The default's loop closure by revisits (``loop_closure``) is on
         here too (ACES 1.38 -> 0.94 m with synthetic odometry), with its strong matches
         (``loop_strong_max_mahalanobis``: ACES logged odometry 1.30 -> 1.04 m). Figures
-        in the README.
+        in docs/radish.md.
         """
         return cls(
             filter=FilterConfig(
@@ -204,11 +204,12 @@ class SlamConfig:
         ``association_pose="predicted_first"`` (per-landmark ICP only for candidates the
         detection test rejects at the predicted pose) and a motion filter of 0.2 m /
         0.2 rad (``measurement_min_travel``, ``measurement_min_turn``), without the
-        default's update verification (``verify_heading_sigma``). Measured (README,
-        "Presets"): 2.5-3.5 times less CPU time per step than the default, at a larger
-        position ATE. The default's loop closure by revisits (``loop_closure``) is on
-        here too (seeds 0-9, off -> on, final error: small 0.181 -> 0.034 m, curved
-        0.083 -> 0.047 m, ``house`` 0.681 -> 0.354 m; single_landmark unchanged).
+        default's update verification (``verify_heading_sigma``). Measured
+        (docs/measurements.md, "The `fast` preset"): 2.5-3.5 times less CPU time per
+        step than the default, at a larger position ATE. The default's loop closure by
+        revisits (``loop_closure``) is on here too (seeds 0-9, off -> on, final error:
+        small 0.181 -> 0.034 m, curved 0.083 -> 0.047 m, ``house`` 0.681 -> 0.354 m;
+        single_landmark unchanged).
         """
         return cls(
             filter=FilterConfig(
