@@ -89,6 +89,19 @@ def test_replay_of_a_written_log_and_bad_mode(tmp_path):
         replay(path, "wheel")
 
 
+def test_range_perturbation_reaches_the_filter_and_is_bounded(tmp_path):
+    """A round-off probe: recorded, changes the run by round-off only, refused when large."""
+    path = _corridor_log(tmp_path)
+    plain = replay(path, "synthetic", seed=1, preset="logs")
+    probed = replay(path, "synthetic", seed=1, preset="logs", range_perturbation=1e-9)
+    assert probed["metrics"]["range_perturbation"] == 1e-9 and probed["metrics"]["completed"]
+    assert plain["metrics"]["range_perturbation"] == 0.0
+    diff = np.abs(probed["slam"] - plain["slam"])
+    assert 0.0 < diff.max() < 1e-6  # the ranges reached the filter, scaled by 1 + 1e-9
+    with pytest.raises(ValueError, match="range_perturbation"):
+        replay(path, "synthetic", seed=1, range_perturbation=1e-3)
+
+
 def test_replay_set_applies_options_over_the_preset(tmp_path, capsys):
     """``--set`` overrides preset options, is recorded, and rejects unknown keys."""
     path = _corridor_log(tmp_path)

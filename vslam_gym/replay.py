@@ -20,7 +20,9 @@ from typing import Any
 import numpy as np
 
 from vslam_gym.evaluation import (
+    MAX_RANGE_PERTURBATION,
     add_overrides_argument,
+    check_range_perturbation,
     final_position_error,
     heading_rmse,
     position_ate_rmse,
@@ -76,6 +78,7 @@ def replay(
     prealign: str | None = None,
     config: SlamConfig | None = None,
     overrides: Mapping[str, Any] | None = None,
+    range_perturbation: float = 0.0,
 ) -> dict[str, Any]:
     """Feed a log to :class:`VertexSLAM` scan by scan; return the metrics and trajectories.
 
@@ -84,23 +87,29 @@ def replay(
     ``overrides`` (configuration sections, e.g. ``{"filter": {...}, "matcher": {...}}``,
     as ``vslam-gym replay --set``) apply over the preset; ``config`` replaces the preset's
     configuration (not both); ``prealign`` overrides ``FilterConfig.prealign`` last
-    (None: keep it).
+    (None: keep it). ``range_perturbation``: every range the filter gets is multiplied
+    by ``1 + this`` (at most ``MAX_RANGE_PERTURBATION``, as in ``vslam-gym evaluate``):
+    ``1e-15`` changes the last bit of some ranges, so the run is another sample of the
+    same filter's round-off (one run of a log is one draw of it).
 
     Returns:
         A dict with ``metrics`` (``scans``, ``completed``, ``ate_rmse_m``,
         ``odom_ate_rmse_m``, ``final_error_m``, ``heading_rmse_rad``, ``landmarks``,
         ``step_ms_median``, ``step_ms_p95``, ``prealign``, ``prealigned_fraction`` (steps
-        that used the whole-scan match), ``loop_closures`` (steps that fused a revisit
-        match, ``FilterConfig.loop_closure``), ``error`` when not completed) and the
+        that used the whole-scan match), ``range_perturbation``, ``loop_closures`` (steps
+        that fused a revisit match, ``FilterConfig.loop_closure``), ``error`` when not
+        completed) and the
         ``true``, ``odometry`` and ``slam`` pose arrays ``(T, 3)``, ``times`` and the
         final ``belief``.
 
     Raises:
         ValueError: unknown odometry mode, malformed log (``CarmenFormatError``), unknown
-            or invalid override, or both ``config`` and ``overrides``.
+            or invalid override, both ``config`` and ``overrides``, or a
+            ``range_perturbation`` outside ``[0, MAX_RANGE_PERTURBATION]``.
     """
     if odometry not in ODOMETRY_MODES:
         raise ValueError(f"odometry must be one of {ODOMETRY_MODES}, got {odometry!r}")
+    range_scale = 1.0 + check_range_perturbation(range_perturbation)
     if config is not None and overrides:
         raise ValueError("give either config or overrides, not both")
     if overrides:
@@ -127,7 +136,8 @@ def replay(
         # Scan 0 is taken at the initial pose: a step without motion.
         u = np.zeros(3) if k == 0 else increments[k - 1]
         try:
-            belief = slam.step(u, log.ranges[k], log.bearings)
+            ranges = log.ranges[k] if range_scale == 1.0 else log.ranges[k] * range_scale
+            belief = slam.step(u, ranges, log.bearings)
         except (ValueError, np.linalg.LinAlgError) as exc:  # report, do not hide
             completed, error = False, f"scan {k}: {type(exc).__name__}: {exc}"
             break
@@ -161,6 +171,7 @@ def replay(
         "step_ms_p95": p95_ms,
         "prealign": config.filter.prealign,
         "prealigned_fraction": prealigned / max(len(step_ms), 1),
+        "range_perturbation": float(range_perturbation),
         "loop_closures": loop_closures,
     }
     if error:
@@ -252,6 +263,15 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
         default=DEFAULT_MAX_RANGE,
         help="readings beyond this [m] are no return (default %(default)s)",
     )
+    parser.add_argument(
+        "--range-perturbation",
+        type=float,
+        default=0.0,
+        metavar="EPS",
+        help="multiply every range the filter gets by 1 + EPS (at most "
+        f"{MAX_RANGE_PERTURBATION:g}); EPS = 1e-15 gives another sample of the same "
+        "filter's round-off, to measure how much of a difference is round-off",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=cmd_replay)
 
@@ -269,6 +289,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         prealign=args.prealign,
         overrides=args.overrides,
+        range_perturbation=args.range_perturbation,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
