@@ -20,8 +20,8 @@ in heading from the corrected poses' (step, decision, heading and position error
 the step, the odometry's heading error, the true turn): where a run went wrong.
 
 ``--preset`` picks the matcher configuration (``SlamConfig.preset(name).matcher``):
-``logs`` (default) or ``default`` (the matcher before keyframe revisits and
-``on_ambiguity``).
+``logs`` (default: ``on_ambiguity="prior"``, no keyframe revisits since 2026-11-26) or
+``default`` (the matcher's defaults: ambiguous matches declined).
 """
 
 from __future__ import annotations

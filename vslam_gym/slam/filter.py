@@ -96,11 +96,6 @@ from vslam_gym.slam.threads import blas_threads as blas_limit
 from vslam_gym.slam.threads import check_blas_threads
 from vslam_gym.slam.update import update_model, update_unknown_lines, wrap_model
 
-LOGS_MATCHER_REVISIT_RADIUS = 3.0
-"""``ScanMatcherConfig.revisit_radius`` [m] of the ``logs`` preset. Matcher alone, full
-logs, synthetic seeds 0-4 mean / logged (``on_ambiguity="prior"``; position ATE [m]):
-off: Intel 0.81 / 0.76, ACES 1.49 / 1.61; 3 m: 0.59 / 0.67, 1.37 / 1.61; 5 m: 0.62 /
-0.69, 1.53 / 1.55; 8 m (30 keyframes): 1.15 / 0.67, 1.72 / 1.74."""
 LOGS_OBSERVATION_INFORMATION_SCALE = 0.1
 """``FilterConfig.observation_information_scale`` of the ``logs`` preset. First 300
 scans, synthetic seeds 0-1 and logged, with ``create_beside_candidates=False``
@@ -153,8 +148,9 @@ class SlamConfig:
         poses tens of degrees off the (now good) prediction are not candidates. The
         default's floor (``icp_gate_sigma_floor``) measured much worse on the logs (see
         its docstring). The matcher resolves an ambiguous match with the prior instead
-        of falling back to the odometry (``on_ambiguity="prior"``) and also matches
-        against older keyframes near the prediction (``revisit_radius``); the landmark
+        of falling back to the odometry (``on_ambiguity="prior"``); it matches against
+        its last keyframes only (no ``revisit_radius``: the filter's loop closure does
+        what its revisits did, see below); the landmark
         layer creates no landmark beside a tested candidate
         (``create_beside_candidates=False``: 50-100 landmarks instead of 300-500 in the
         first 300 scans) and weighs its observations with
@@ -163,6 +159,19 @@ class SlamConfig:
         here too (ACES 1.38 -> 0.94 m with synthetic odometry), with its strong matches
         (``loop_strong_max_mahalanobis``: ACES logged odometry 1.30 -> 1.04 m). Figures
         in docs/radish.md.
+
+        The matcher's revisits (older keyframes within 3 m of the prediction, an
+        implicit loop closure in the matcher's own frame) were in this preset before the
+        filter had its loop closure. With it they only turn a revisit into a jump of the
+        matched motion, which the motion update cannot carry over to the landmarks.
+        Without them (2026-11-26; full logs, position ATE [m], synthetic seeds 0-19 mean,
+        logged odometry over six round-off samples): Intel 1.10 -> 0.48 (seed 7's
+        quarter turn at a corridor junction, 12.8 m, is gone; the other seeds level),
+        logged 0.67 -> 0.67; ACES 1.13 -> 1.25 (paired t +1.2; seeds 0-4 0.94 -> 1.05),
+        logged 1.04-1.12 -> 0.96-0.97. A 1.5 m radius: Intel 0.63 (one seed 2.45), ACES
+        1.13, logged 1.11. Before the loop closure, on the matcher alone (synthetic seeds
+        0-4 / logged): off Intel 0.81 / 0.76, ACES 1.49 / 1.61; 3 m 0.59 / 0.67, 1.37 /
+        1.61; 5 m 0.62 / 0.69, 1.53 / 1.55; 8 m (30 keyframes) 1.15 / 0.67, 1.72 / 1.74.
         """
         return cls(
             filter=FilterConfig(
@@ -192,9 +201,7 @@ class SlamConfig:
             # No freeze_on_cycle: measured no better here (full logs, seeds 0-4, position
             # ATE mean: Intel 0.61 -> 0.59 m, ACES 1.36 -> 1.44 m; step time unchanged).
             icp=IcpConfig(point_to_line=True),
-            matcher=ScanMatcherConfig(
-                on_ambiguity="prior", revisit_radius=LOGS_MATCHER_REVISIT_RADIUS
-            ),
+            matcher=ScanMatcherConfig(on_ambiguity="prior"),
         )
 
     @classmethod
