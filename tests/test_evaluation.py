@@ -406,6 +406,25 @@ def test_evaluate_end_to_end_is_deterministic(episode, tmp_path, capsys):
         assert _same(again[key], seed[key]), key
 
 
+def test_evaluate_in_worker_processes_gives_the_same_metrics(tmp_path):
+    """``jobs=2`` runs the seeds in two processes: same metrics and files, seed order."""
+    kwargs = dict(max_steps=15, progress=False, print_table=False)
+    alone = evaluate("small", [1, 0], out_dir=tmp_path / "one", **kwargs)
+    pooled = evaluate("small", [1, 0], out_dir=tmp_path / "two", jobs=2, **kwargs)
+    assert [m["seed"] for m in pooled["per_seed"]] == [1, 0]
+    for a, b in zip(alone["per_seed"], pooled["per_seed"], strict=True):
+        assert a.keys() == b.keys()
+        for key in a.keys() - set(TIMING_KEYS):
+            assert a[key] == b[key] or (math.isnan(a[key]) and math.isnan(b[key])), key
+    assert (tmp_path / "two" / "map_seed0.png").read_bytes()[:8] == PNG_MAGIC
+    assert np.array_equal(
+        np.loadtxt(tmp_path / "one" / "slam_seed1.tum"),
+        np.loadtxt(tmp_path / "two" / "slam_seed1.tum"),
+    )
+    with pytest.raises(ValueError, match="jobs"):
+        evaluate("small", [0], out_dir=tmp_path / "bad", jobs=0, **kwargs)
+
+
 def test_sem_metrics_and_the_table_row():
     per_seed = [
         {"seed": 0, "world": "w", "preset": "default", "ate_rmse_m": 0.1, "route_done": True},

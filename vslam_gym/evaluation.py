@@ -38,6 +38,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -933,15 +934,17 @@ def json_safe(value: Any) -> Any:
     return value
 
 
-def progress_bar(total: int | None, desc: str, enabled: bool, leave: bool = False) -> Any:
-    """A tqdm bar (on stderr, in steps) when tqdm is installed and ``enabled``, else None."""
+def progress_bar(
+    total: int | None, desc: str, enabled: bool, leave: bool = False, unit: str = "step"
+) -> Any:
+    """A tqdm bar (on stderr, counting ``unit``) when tqdm is installed and ``enabled``."""
     if not enabled:
         return None
     try:
         from tqdm import tqdm
     except ImportError:
         return None
-    return tqdm(total=total, desc=desc, unit="step", leave=leave, file=sys.stderr)
+    return tqdm(total=total, desc=desc, unit=unit, leave=leave, file=sys.stderr)
 
 
 def save_episode(log: EpisodeLog, out_dir: Path) -> list[Path]:
@@ -986,6 +989,7 @@ def evaluate(
     print_table: bool = True,
     overrides: Mapping[str, Any] | None = None,
     range_perturbation: float = 0.0,
+    jobs: int = 1,
 ) -> dict[str, Any]:
     """Run one episode per seed and write metrics, figures and trajectories.
 
@@ -1000,6 +1004,9 @@ def evaluate(
         overrides: optional ``{"model": {...}, "filter": {...}, "icp": {...}}`` applied
             over the preset (:meth:`SlamConfig.from_dict`), e.g. a measured option.
         range_perturbation: a round-off probe (:func:`run_episode`), 0 by default.
+        jobs: episodes run at once, each in its own worker process (1: one after the
+            other in this process). The metrics are the same for any ``jobs`` except
+            the step times, which then include the episodes' competition for cores.
 
     Returns:
         The content of ``out_dir/metrics.json``: ``world``, ``preset``, ``overrides``,
@@ -1011,31 +1018,23 @@ def evaluate(
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("evaluate needs at least one seed")
+    if not (isinstance(jobs, int) and jobs >= 1):
+        raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
     SlamConfig.from_dict({"preset": preset, **(overrides or {})})  # fail early
     range_perturbation = check_range_perturbation(range_perturbation)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if jobs > 1:
+        logs = _episodes_in_workers(
+            world, seeds, preset, max_steps, overrides, range_perturbation, jobs, progress
+        )
+    else:
+        logs = (
+            _episode_with_bar(world, s, preset, max_steps, overrides, range_perturbation, progress)
+            for s in seeds
+        )
     per_seed = []
-    for seed in seeds:
-        bar = progress_bar(max_steps, f"{world} seed {seed}", progress)
-
-        def tick(step: int, belief: Belief, bar: Any = bar) -> None:
-            bar.update(1)
-            bar.set_postfix(landmarks=len(belief.landmarks), refresh=False)
-
-        try:
-            log = run_episode(
-                world,
-                seed,
-                preset,
-                max_steps,
-                tick if bar is not None else None,
-                overrides,
-                range_perturbation,
-            )
-        finally:
-            if bar is not None:
-                bar.close()
+    for log in logs:  # in seed order; figures as each episode arrives
         per_seed.append(episode_metrics(log))
         save_episode(log, out)
     result = {
@@ -1054,6 +1053,68 @@ def evaluate(
     if print_table:
         print(format_table(result))
     return result
+
+
+def _episode_with_bar(
+    world: str,
+    seed: int,
+    preset: str,
+    max_steps: int | None,
+    overrides: Mapping[str, Any] | None,
+    range_perturbation: float,
+    progress: bool,
+) -> EpisodeLog:
+    """:func:`run_episode` with a per-step progress bar (when ``progress``)."""
+    bar = progress_bar(max_steps, f"{world} seed {seed}", progress)
+
+    def tick(step: int, belief: Belief) -> None:
+        bar.update(1)
+        bar.set_postfix(landmarks=len(belief.landmarks), refresh=False)
+
+    try:
+        return run_episode(
+            world,
+            seed,
+            preset,
+            max_steps,
+            tick if bar is not None else None,
+            overrides,
+            range_perturbation,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _episodes_in_workers(
+    world: str,
+    seeds: Sequence[int],
+    preset: str,
+    max_steps: int | None,
+    overrides: Mapping[str, Any] | None,
+    range_perturbation: float,
+    jobs: int,
+    progress: bool,
+) -> Iterable[EpisodeLog]:
+    """Episodes of ``seeds`` in ``jobs`` worker processes, yielded in seed order."""
+    bar = progress_bar(len(seeds), f"{world} seeds", progress, unit="episode")
+    overrides = dict(overrides or {})
+    with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
+        futures = [
+            pool.submit(
+                run_episode, world, seed, preset, max_steps, None, overrides, range_perturbation
+            )
+            for seed in seeds
+        ]
+        if bar is not None:
+            for future in futures:
+                future.add_done_callback(lambda _: bar.update(1))
+        try:
+            for future in futures:
+                yield future.result()
+        finally:
+            if bar is not None:
+                bar.close()
 
 
 def machine_description() -> str:
@@ -1258,6 +1319,14 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
         f"{MAX_RANGE_PERTURBATION:g}); EPS = 1e-15 gives another sample of the same "
         "filter's round-off, to measure how much of a difference is round-off",
     )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="episodes run at once in worker processes (default 1); the metrics do not "
+        "change, the step times then include the competition for cores",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=cmd_evaluate)
     return parser
@@ -1276,6 +1345,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print_table=False,
         overrides=args.overrides,
         range_perturbation=args.range_perturbation,
+        jobs=args.jobs,
     )
     print(format_table(metrics))
     print(
