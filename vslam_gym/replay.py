@@ -98,9 +98,8 @@ def replay(
         ``step_ms_median``, ``step_ms_p95``, ``prealign``, ``prealigned_fraction`` (steps
         that used the whole-scan match), ``range_perturbation``, ``loop_closures`` (steps
         that fused a revisit match, ``FilterConfig.loop_closure``), ``error`` when not
-        completed) and the
-        ``true``, ``odometry`` and ``slam`` pose arrays ``(T, 3)``, ``times`` and the
-        final ``belief``.
+        completed) and the ``true``, ``odometry`` and ``slam`` pose arrays ``(T, 3)``,
+        ``times`` and the final ``belief``.
 
     Raises:
         ValueError: unknown odometry mode, malformed log (``CarmenFormatError``), unknown
