@@ -102,6 +102,20 @@ def test_range_perturbation_reaches_the_filter_and_is_bounded(tmp_path):
         replay(path, "synthetic", seed=1, range_perturbation=1e-3)
 
 
+def test_sensor_noise_options_reach_the_sensor_model(tmp_path, capsys):
+    """``--sigma-range`` / ``--sigma-bearing-deg`` set the lidar model; bad ones are refused."""
+    path = _corridor_log(tmp_path)
+    out = tmp_path / "run"
+    args = ["replay", str(path), "--out", str(out), "--no-progress"]
+    assert main([*args, "--sigma-range", "0.05", "--sigma-bearing-deg", "0.5"]) == 0
+    sensor = json.loads((out / "metrics.json").read_text())["sensor"]
+    assert sensor["sigma_range"] == 0.05 and sensor["sigma_bearing_deg"] == 0.5
+    assert sensor["fov_deg"] == pytest.approx(180.0, abs=1.0)  # from the log's 180 beams
+    assert sensor["resolution_deg"] == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="sigma_range"):
+        replay(path, sigma_range=-0.1)
+
+
 def test_replay_set_applies_options_over_the_preset(tmp_path, capsys):
     """``--set`` overrides preset options, is recorded, and rejects unknown keys."""
     path = _corridor_log(tmp_path)

@@ -96,7 +96,9 @@ def replay(
         A dict with ``metrics`` (``scans``, ``completed``, ``ate_rmse_m``,
         ``odom_ate_rmse_m``, ``final_error_m``, ``heading_rmse_rad``, ``landmarks``,
         ``step_ms_median``, ``step_ms_p95``, ``prealign``, ``prealigned_fraction`` (steps
-        that used the whole-scan match), ``range_perturbation``, ``loop_closures`` (steps
+        that used the whole-scan match), ``range_perturbation``, ``sensor`` (the lidar
+        model: FOV and resolution from the log's bearings, maximum range, noise, offset),
+        ``loop_closures`` (steps
         that fused a revisit match, ``FilterConfig.loop_closure``), ``error`` when not
         completed) and the ``true``, ``odometry`` and ``slam`` pose arrays ``(T, 3)``,
         ``times`` and the final ``belief``.
@@ -122,9 +124,8 @@ def replay(
     config = config or SlamConfig.preset(preset)
     if prealign is not None:
         config = replace(config, filter=replace(config.filter, prealign=prealign))
-    slam = VertexSLAM(
-        sensor_for_log(log, sigma_range, sigma_bearing_deg), config, initial_pose=log.poses[0]
-    )
+    sensor = sensor_for_log(log, sigma_range, sigma_bearing_deg)
+    slam = VertexSLAM(sensor, config, initial_pose=log.poses[0])
     slam_poses: list[np.ndarray] = []
     step_ms: list[float] = []
     prealigned = loop_closures = 0
@@ -171,6 +172,14 @@ def replay(
         "prealign": config.filter.prealign,
         "prealigned_fraction": prealigned / max(len(step_ms), 1),
         "range_perturbation": float(range_perturbation),
+        "sensor": {
+            "fov_deg": sensor.fov_deg,
+            "resolution_deg": sensor.resolution_deg,
+            "max_range": sensor.max_range,
+            "sigma_range": sensor.sigma_range,
+            "sigma_bearing_deg": sensor.sigma_bearing_deg,
+            "lidar_offset": list(sensor.lidar_offset),
+        },
         "loop_closures": loop_closures,
     }
     if error:
@@ -263,6 +272,18 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
         help="readings beyond this [m] are no return (default %(default)s)",
     )
     parser.add_argument(
+        "--sigma-range",
+        type=float,
+        default=DEFAULT_SIGMA_RANGE,
+        help="range noise standard deviation of the lidar [m] (default %(default)s)",
+    )
+    parser.add_argument(
+        "--sigma-bearing-deg",
+        type=float,
+        default=DEFAULT_SIGMA_BEARING_DEG,
+        help="bearing noise standard deviation of the lidar [deg] (default %(default)s)",
+    )
+    parser.add_argument(
         "--range-perturbation",
         type=float,
         default=0.0,
@@ -285,6 +306,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         args.preset,
         args.max_scans,
         args.max_range,
+        args.sigma_range,
+        args.sigma_bearing_deg,
         progress=not args.no_progress,
         prealign=args.prealign,
         overrides=args.overrides,
@@ -304,7 +327,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         ", ".join(
             f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
             for k, v in metrics.items()
-            if k != "overrides" or v  # printed only when there are any
+            if (k != "overrides" or v) and k != "sensor"  # overrides only when there are any
         )
     )
     print(f"wall time {time.perf_counter() - start:.1f} s; wrote {out}/metrics.json")
