@@ -116,6 +116,32 @@ def test_sensor_noise_options_reach_the_sensor_model(tmp_path, capsys):
         replay(path, sigma_range=-0.1)
 
 
+def test_several_seeds_are_replayed_into_their_own_folders_and_summarised(tmp_path, capsys):
+    """``--seeds 0-2`` writes ``seedS/`` per seed and their summary; ``--jobs 2`` the same."""
+    path = _corridor_log(tmp_path)
+    args = ["replay", str(path), "--odometry", "synthetic", "--seeds", "0-2", "--no-progress"]
+    assert main([*args, "--out", str(tmp_path / "one")]) == 0
+    assert main([*args, "--out", str(tmp_path / "two"), "--jobs", "2"]) == 0
+    one = json.loads((tmp_path / "one" / "metrics.json").read_text())
+    two = json.loads((tmp_path / "two" / "metrics.json").read_text())
+    ates = [m["ate_rmse_m"] for m in one["per_seed"]]
+    assert [m["seed"] for m in one["per_seed"]] == [0, 1, 2]
+    assert one["summary"]["ate_rmse_m"]["mean"] == pytest.approx(np.mean(ates))
+    assert one["summary"]["ate_rmse_m"]["max"] == max(ates) and one["summary"]["completed"]
+    assert [m["ate_rmse_m"] for m in two["per_seed"]] == ates  # worker processes: same runs
+    for seed in (0, 1, 2):
+        single = json.loads((tmp_path / "two" / f"seed{seed}" / "metrics.json").read_text())
+        assert single["ate_rmse_m"] == ates[seed]
+    assert len(set(ates)) == 3  # the seeds draw different odometry
+    assert "ate_rmse_m over seeds 0,1,2: mean" in capsys.readouterr().out
+    # the logged odometry has no seed
+    common = ["replay", str(path), "--no-progress", "--out"]
+    assert main([*common, str(tmp_path / "bad"), "--seeds", "0-1"]) == 2
+    assert "no seed" in capsys.readouterr().err
+    assert main([*common, str(tmp_path / "s3"), "--seed", "3"]) == 0
+    assert json.loads((tmp_path / "s3" / "metrics.json").read_text())["seed"] == 3
+
+
 def test_replay_set_applies_options_over_the_preset(tmp_path, capsys):
     """``--set`` overrides preset options, is recorded, and rejects unknown keys."""
     path = _corridor_log(tmp_path)

@@ -79,6 +79,7 @@ __all__ = [
     "position_ate_rmse",
     "progress_bar",
     "run_episode",
+    "seeds_argument",
     "sem_metrics",
     "sensor_from_lidar",
     "slam_config",
@@ -1227,7 +1228,8 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
-def _seeds_argument(text: str) -> list[int]:
+def seeds_argument(text: str) -> list[int]:
+    """An argparse type: :func:`parse_seeds`, its errors as argparse errors."""
     try:
         return parse_seeds(text)
     except SeedsError as err:
@@ -1295,7 +1297,7 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     parser.add_argument("--world", required=True, help="shipped world name or path to a .toml")
     parser.add_argument(
         "--seeds",
-        type=_seeds_argument,
+        type=seeds_argument,
         default=[0],
         help="seeds: a range 0-9, a list 0,3,5 or one seed 7 (default 0)",
     )

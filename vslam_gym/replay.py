@@ -12,7 +12,8 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,7 @@ from vslam_gym.evaluation import (
     final_position_error,
     heading_rmse,
     position_ate_rmse,
+    seeds_argument,
     timing_summary,
     write_tum,
 )
@@ -253,7 +255,15 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("log", help="path to the log")
     parser.add_argument("--odometry", choices=ODOMETRY_MODES, default="logged")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic odometry")
+    parser.add_argument(
+        "--seed",
+        "--seeds",
+        dest="seeds",
+        type=seeds_argument,
+        default=[0],
+        help="seed(s) of the synthetic odometry: one seed 3, a range 0-4 or a list 0,3,5 "
+        "(several: each run in OUT/seedS/, and their summary in OUT/metrics.json)",
+    )
     parser.add_argument("--preset", choices=("default", "thesis", "logs"), default="default")
     parser.add_argument(
         "--prealign",
@@ -292,43 +302,130 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
         f"{MAX_RANGE_PERTURBATION:g}); EPS = 1e-15 gives another sample of the same "
         "filter's round-off, to measure how much of a difference is round-off",
     )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="seeds replayed at once in worker processes (default 1); the metrics do not "
+        "change, the step times then include the competition for cores",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=cmd_replay)
+
+
+def write_replay(result: dict[str, Any], out: Path) -> None:
+    """Write a replay's ``metrics.json``, TUM trajectories and figures to ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(_json_clean(result["metrics"]), indent=2))
+    for name in ("true", "odometry", "slam"):
+        write_tum(out / f"{name}.tum", result["times"], result[name])
+    plot_replay(result, out)
+
+
+def _json_clean(metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """JSON has no NaN: non-finite floats become null."""
+    return {
+        k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in metrics.items()
+    }
+
+
+def _replay_to(out: Path, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Replay with ``kwargs``, write the result to ``out``; return its metrics."""
+    result = replay(**kwargs)
+    write_replay(result, out)
+    return result["metrics"]
+
+
+SUMMARY_KEYS = ("ate_rmse_m", "final_error_m", "heading_rmse_rad", "step_ms_median")
+"""Metrics summarised over the seeds of a multi-seed replay."""
+
+
+def summarize_seeds(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Mean, median, maximum and standard error over seeds of :data:`SUMMARY_KEYS`.
+
+    Also ``seeds``, ``completed`` (every run) and ``odom_ate_rmse_m`` (mean).
+    """
+    if not per_seed:
+        raise ValueError("no seed to summarise")
+    out: dict[str, Any] = {
+        "seeds": [int(m["seed"]) for m in per_seed],
+        "completed": all(bool(m["completed"]) for m in per_seed),
+        "odom_ate_rmse_m": float(np.mean([m["odom_ate_rmse_m"] for m in per_seed])),
+    }
+    for key in SUMMARY_KEYS:
+        v = np.array([float(m[key]) for m in per_seed])
+        out[key] = {
+            "mean": float(v.mean()),
+            "median": float(np.median(v)),
+            "max": float(v.max()),
+            "sem": float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan"),
+        }
+    return out
+
+
+def _summary_line(metrics: Mapping[str, Any]) -> str:
+    return ", ".join(
+        f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
+        for k, v in metrics.items()
+        if (k != "overrides" or v) and k != "sensor"  # overrides only when there are any
+    )
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """Handler of ``vslam-gym replay``."""
     start = time.perf_counter()
-    result = replay(
-        args.log,
-        args.odometry,
-        args.seed,
-        args.preset,
-        args.max_scans,
-        args.max_range,
-        args.sigma_range,
-        args.sigma_bearing_deg,
-        progress=not args.no_progress,
+    seeds = list(args.seeds)
+    if len(seeds) > 1 and args.odometry == "logged":
+        raise ValueError(
+            "the logged odometry has no seed: give one --seed (for other samples of the same "
+            "run use --range-perturbation 1e-15, 3e-15, ...)"
+        )
+    if args.jobs < 1:
+        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    kwargs = dict(
+        path=args.log,
+        odometry=args.odometry,
+        preset=args.preset,
+        max_scans=args.max_scans,
+        max_range=args.max_range,
+        sigma_range=args.sigma_range,
+        sigma_bearing_deg=args.sigma_bearing_deg,
         prealign=args.prealign,
         overrides=args.overrides,
         range_perturbation=args.range_perturbation,
     )
     out = Path(args.out)
+    if len(seeds) == 1:
+        metrics = _replay_to(out, {**kwargs, "seed": seeds[0], "progress": not args.no_progress})
+        print(_summary_line(metrics))
+        print(f"wall time {time.perf_counter() - start:.1f} s; wrote {out}/metrics.json")
+        return 0
+    dirs = [out / f"seed{seed}" for seed in seeds]
+    jobs = [{**kwargs, "seed": seed} for seed in seeds]
+    if args.jobs > 1:
+        with ProcessPoolExecutor(max_workers=min(args.jobs, len(seeds))) as pool:
+            per_seed = list(pool.map(_replay_to, dirs, jobs))
+    else:
+        per_seed = [_replay_to(d, job) for d, job in zip(dirs, jobs, strict=True)]
+    for metrics in per_seed:
+        print(_summary_line(metrics))
+    summary = summarize_seeds(per_seed)
+    first = per_seed[0]
+    report = {
+        **{k: first[k] for k in ("log", "odometry", "preset", "overrides", "range_perturbation")},
+        "summary": summary,
+        "per_seed": [_json_clean(m) for m in per_seed],
+    }
     out.mkdir(parents=True, exist_ok=True)
-    metrics = result["metrics"]
-    clean = {
-        k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in metrics.items()
-    }  # JSON has no NaN: null
-    (out / "metrics.json").write_text(json.dumps(clean, indent=2))
-    for name in ("true", "odometry", "slam"):
-        write_tum(out / f"{name}.tum", result["times"], result[name])
-    plot_replay(result, out)
-    print(
-        ", ".join(
-            f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
-            for k, v in metrics.items()
-            if (k != "overrides" or v) and k != "sensor"  # overrides only when there are any
+    (out / "metrics.json").write_text(json.dumps(report, indent=2))
+    listed = ",".join(str(seed) for seed in seeds)
+    for key in SUMMARY_KEYS:
+        v = summary[key]
+        print(
+            f"{key} over seeds {listed}: mean {v['mean']:.3f} (sem {v['sem']:.3f}), "
+            f"median {v['median']:.3f}, max {v['max']:.3f}"
         )
-    )
+    print(f"completed {summary['completed']}; odometry ATE mean {summary['odom_ate_rmse_m']:.3f}")
     print(f"wall time {time.perf_counter() - start:.1f} s; wrote {out}/metrics.json")
     return 0
