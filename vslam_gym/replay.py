@@ -26,6 +26,7 @@ from vslam_gym.evaluation import (
     check_range_perturbation,
     final_position_error,
     heading_rmse,
+    json_safe,
     position_ate_rmse,
     seeds_argument,
     timing_summary,
@@ -100,10 +101,9 @@ def replay(
         ``step_ms_median``, ``step_ms_p95``, ``prealign``, ``prealigned_fraction`` (steps
         that used the whole-scan match), ``range_perturbation``, ``sensor`` (the lidar
         model: FOV and resolution from the log's bearings, maximum range, noise, offset),
-        ``loop_closures`` (steps
-        that fused a revisit match, ``FilterConfig.loop_closure``), ``error`` when not
-        completed) and the ``true``, ``odometry`` and ``slam`` pose arrays ``(T, 3)``,
-        ``times`` and the final ``belief``.
+        ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``),
+        ``error`` when not completed) and the ``true``, ``odometry`` and ``slam`` pose
+        arrays ``(T, 3)``, ``times`` and the final ``belief``.
 
     Raises:
         ValueError: unknown odometry mode, malformed log (``CarmenFormatError``), unknown
@@ -317,17 +317,10 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
 def write_replay(result: dict[str, Any], out: Path) -> None:
     """Write a replay's ``metrics.json``, TUM trajectories and figures to ``out``."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "metrics.json").write_text(json.dumps(_json_clean(result["metrics"]), indent=2))
+    (out / "metrics.json").write_text(json.dumps(json_safe(result["metrics"]), indent=2))
     for name in ("true", "odometry", "slam"):
         write_tum(out / f"{name}.tum", result["times"], result[name])
     plot_replay(result, out)
-
-
-def _json_clean(metrics: Mapping[str, Any]) -> dict[str, Any]:
-    """JSON has no NaN: non-finite floats become null."""
-    return {
-        k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in metrics.items()
-    }
 
 
 def _replay_to(out: Path, kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -402,8 +395,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(f"wall time {time.perf_counter() - start:.1f} s; wrote {out}/metrics.json")
         return 0
     dirs = [out / f"seed{seed}" for seed in seeds]
-    jobs = [{**kwargs, "seed": seed} for seed in seeds]
+    jobs = [{**kwargs, "seed": seed, "progress": not args.no_progress} for seed in seeds]
     if args.jobs > 1:
+        jobs = [{**job, "progress": False} for job in jobs]  # bars of parallel runs clash
         with ProcessPoolExecutor(max_workers=min(args.jobs, len(seeds))) as pool:
             per_seed = list(pool.map(_replay_to, dirs, jobs))
     else:
@@ -415,10 +409,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     report = {
         **{k: first[k] for k in ("log", "odometry", "preset", "overrides", "range_perturbation")},
         "summary": summary,
-        "per_seed": [_json_clean(m) for m in per_seed],
+        "per_seed": per_seed,
     }
     out.mkdir(parents=True, exist_ok=True)
-    (out / "metrics.json").write_text(json.dumps(report, indent=2))
+    (out / "metrics.json").write_text(json.dumps(json_safe(report), indent=2))
     listed = ",".join(str(seed) for seed in seeds)
     for key in SUMMARY_KEYS:
         v = summary[key]
