@@ -28,6 +28,7 @@ from vslam_gym.evaluation import (
     heading_rmse,
     json_safe,
     position_ate_rmse,
+    progress_bar,
     seeds_argument,
     timing_summary,
     write_tum,
@@ -132,7 +133,7 @@ def replay(
     step_ms: list[float] = []
     prealigned = loop_closures = 0
     completed, error = True, ""
-    bar = _progress(n, progress)
+    bar = progress_bar(n, Path(path).name, progress, leave=True, unit="scan")
     belief = slam.belief
     for k in range(n):
         # Scan 0 is taken at the initial pose: a step without motion.
@@ -195,16 +196,6 @@ def replay(
         "belief": belief,
         "log": log,
     }
-
-
-def _progress(total: int, enabled: bool) -> Any:
-    if not enabled:
-        return None
-    try:
-        from tqdm import tqdm
-    except ImportError:  # the progress bar is optional
-        return None
-    return tqdm(total=total, unit="scan")
 
 
 def plot_replay(result: dict[str, Any], out: Path) -> None:
@@ -398,8 +389,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
     jobs = [{**kwargs, "seed": seed, "progress": not args.no_progress} for seed in seeds]
     if args.jobs > 1:
         jobs = [{**job, "progress": False} for job in jobs]  # bars of parallel runs clash
+        bar = progress_bar(len(seeds), "seeds", not args.no_progress, unit="run")
         with ProcessPoolExecutor(max_workers=min(args.jobs, len(seeds))) as pool:
-            per_seed = list(pool.map(_replay_to, dirs, jobs))
+            futures = [pool.submit(_replay_to, d, job) for d, job in zip(dirs, jobs, strict=True)]
+            if bar is not None:
+                for future in futures:
+                    future.add_done_callback(lambda _: bar.update(1))
+            per_seed = [future.result() for future in futures]
+        if bar is not None:
+            bar.close()
     else:
         per_seed = [_replay_to(d, job) for d, job in zip(dirs, jobs, strict=True)]
     for metrics in per_seed:
