@@ -299,6 +299,7 @@ def test_evaluate_parser():
         (["--set", '{"filter": {"icp_gate": 3}}'], "icp_gate"),
         (["--set", '{"preset": "thesis"}'], "--preset"),
         (["--set", '{"filter": {"measurement_min_travel": -1}}'], "measurement_min_travel"),
+        (["--jobs", "0"], "--jobs"),
     ],
 )
 def test_evaluate_parser_rejects(bad, message, capsys):

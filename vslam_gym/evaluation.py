@@ -37,7 +37,7 @@ import platform
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,6 +57,8 @@ __all__ = [
     "EpisodeLog",
     "SeedsError",
     "add_evaluate_parser",
+    "add_jobs_argument",
+    "add_range_perturbation_argument",
     "association_precision",
     "check_range_perturbation",
     "chi2_interval",
@@ -67,6 +69,7 @@ __all__ = [
     "final_position_error",
     "format_table",
     "heading_rmse",
+    "in_workers",
     "json_safe",
     "landmark_majority_ids",
     "machine_description",
@@ -1026,9 +1029,12 @@ def evaluate(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if jobs > 1:
-        logs = _episodes_in_workers(
-            world, seeds, preset, max_steps, overrides, range_perturbation, jobs, progress
-        )
+        calls = [
+            (world, s, preset, max_steps, None, dict(overrides or {}), range_perturbation)
+            for s in seeds
+        ]
+        bar = progress_bar(len(seeds), f"{world} seeds", progress, unit="episode")
+        logs = in_workers(run_episode, calls, jobs, bar)
     else:
         logs = (
             _episode_with_bar(world, s, preset, max_steps, overrides, range_perturbation, progress)
@@ -1087,35 +1093,28 @@ def _episode_with_bar(
             bar.close()
 
 
-def _episodes_in_workers(
-    world: str,
-    seeds: Sequence[int],
-    preset: str,
-    max_steps: int | None,
-    overrides: Mapping[str, Any] | None,
-    range_perturbation: float,
+def in_workers(
+    function: Callable[..., Any],
+    calls: Sequence[tuple[Any, ...]],
     jobs: int,
-    progress: bool,
-) -> Iterable[EpisodeLog]:
-    """Episodes of ``seeds`` in ``jobs`` worker processes, yielded in seed order."""
-    bar = progress_bar(len(seeds), f"{world} seeds", progress, unit="episode")
-    overrides = dict(overrides or {})
-    with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
-        futures = [
-            pool.submit(
-                run_episode, world, seed, preset, max_steps, None, overrides, range_perturbation
-            )
-            for seed in seeds
-        ]
-        if bar is not None:
-            for future in futures:
-                future.add_done_callback(lambda _: bar.update(1))
-        try:
+    bar: Any = None,
+) -> Iterator[Any]:
+    """``function(*call)`` for each call in ``jobs`` worker processes, yielded in order.
+
+    ``bar`` (a :func:`progress_bar` or None) advances as each call finishes and is closed
+    at the end. ``function`` and the arguments must be picklable (module-level).
+    """
+    try:
+        with ProcessPoolExecutor(max_workers=max(1, min(jobs, len(calls)))) as pool:
+            futures = [pool.submit(function, *call) for call in calls]
+            if bar is not None:
+                for future in futures:
+                    future.add_done_callback(lambda _: bar.update(1))
             for future in futures:
                 yield future.result()
-        finally:
-            if bar is not None:
-                bar.close()
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 def machine_description() -> str:
@@ -1285,6 +1284,41 @@ def add_overrides_argument(parser: argparse.ArgumentParser, example: str) -> Non
     )
 
 
+def add_range_perturbation_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--range-perturbation EPS`` (a round-off probe, :func:`run_episode`)."""
+    parser.add_argument(
+        "--range-perturbation",
+        type=float,
+        default=0.0,
+        metavar="EPS",
+        help="multiply every range the filter gets by 1 + EPS (at most "
+        f"{MAX_RANGE_PERTURBATION:g}); EPS = 1e-15 gives another sample of the same "
+        "filter's round-off, to measure how much of a difference is round-off",
+    )
+
+
+def _jobs_argument(text: str) -> int:
+    try:
+        jobs = int(text)
+    except ValueError:
+        jobs = 0
+    if jobs < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return jobs
+
+
+def add_jobs_argument(parser: argparse.ArgumentParser, runs: str) -> None:
+    """Add ``--jobs N``: ``runs`` (e.g. "episodes") at once in worker processes."""
+    parser.add_argument(
+        "--jobs",
+        type=_jobs_argument,
+        default=1,
+        metavar="N",
+        help=f"{runs} run at once in worker processes (default 1); the metrics do not "
+        "change, the step times then include the competition for cores",
+    )
+
+
 def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``evaluate`` subcommand (its handler is :func:`cmd_evaluate`)."""
     parser = subparsers.add_parser(
@@ -1312,23 +1346,8 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     parser.add_argument(
         "--max-steps", type=int, default=None, help="step budget per seed (default: whole route)"
     )
-    parser.add_argument(
-        "--range-perturbation",
-        type=float,
-        default=0.0,
-        metavar="EPS",
-        help="multiply every range the filter gets by 1 + EPS (at most "
-        f"{MAX_RANGE_PERTURBATION:g}); EPS = 1e-15 gives another sample of the same "
-        "filter's round-off, to measure how much of a difference is round-off",
-    )
-    parser.add_argument(
-        "--jobs",
-        type=int,
-        default=1,
-        metavar="N",
-        help="episodes run at once in worker processes (default 1); the metrics do not "
-        "change, the step times then include the competition for cores",
-    )
+    add_range_perturbation_argument(parser)
+    add_jobs_argument(parser, "episodes")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=cmd_evaluate)
     return parser

@@ -13,7 +13,6 @@ import argparse
 import json
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -21,11 +20,13 @@ from typing import Any
 import numpy as np
 
 from vslam_gym.evaluation import (
-    MAX_RANGE_PERTURBATION,
+    add_jobs_argument,
     add_overrides_argument,
+    add_range_perturbation_argument,
     check_range_perturbation,
     final_position_error,
     heading_rmse,
+    in_workers,
     json_safe,
     position_ate_rmse,
     progress_bar,
@@ -284,23 +285,8 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
         default=DEFAULT_SIGMA_BEARING_DEG,
         help="bearing noise standard deviation of the lidar [deg] (default %(default)s)",
     )
-    parser.add_argument(
-        "--range-perturbation",
-        type=float,
-        default=0.0,
-        metavar="EPS",
-        help="multiply every range the filter gets by 1 + EPS (at most "
-        f"{MAX_RANGE_PERTURBATION:g}); EPS = 1e-15 gives another sample of the same "
-        "filter's round-off, to measure how much of a difference is round-off",
-    )
-    parser.add_argument(
-        "--jobs",
-        type=int,
-        default=1,
-        metavar="N",
-        help="seeds replayed at once in worker processes (default 1); the metrics do not "
-        "change, the step times then include the competition for cores",
-    )
+    add_range_perturbation_argument(parser)
+    add_jobs_argument(parser, "seeds")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=cmd_replay)
 
@@ -365,8 +351,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
             "the logged odometry has no seed: give one --seed (for other samples of the same "
             "run use --range-perturbation 1e-15, 3e-15, ...)"
         )
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
     kwargs = dict(
         path=args.log,
         odometry=args.odometry,
@@ -388,16 +372,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     dirs = [out / f"seed{seed}" for seed in seeds]
     jobs = [{**kwargs, "seed": seed, "progress": not args.no_progress} for seed in seeds]
     if args.jobs > 1:
-        jobs = [{**job, "progress": False} for job in jobs]  # bars of parallel runs clash
+        calls = [(d, {**job, "progress": False}) for d, job in zip(dirs, jobs, strict=True)]
         bar = progress_bar(len(seeds), "seeds", not args.no_progress, unit="run")
-        with ProcessPoolExecutor(max_workers=min(args.jobs, len(seeds))) as pool:
-            futures = [pool.submit(_replay_to, d, job) for d, job in zip(dirs, jobs, strict=True)]
-            if bar is not None:
-                for future in futures:
-                    future.add_done_callback(lambda _: bar.update(1))
-            per_seed = [future.result() for future in futures]
-        if bar is not None:
-            bar.close()
+        per_seed = list(in_workers(_replay_to, calls, args.jobs, bar))  # parallel bars clash
     else:
         per_seed = [_replay_to(d, job) for d, job in zip(dirs, jobs, strict=True)]
     for metrics in per_seed:
