@@ -148,9 +148,9 @@ class RevisitKeyframes(LocalMap):
             self._reference, self._selection = None, ()
         return len(later)
 
-    def selected_stamp(self) -> int:
-        """The newest stamp among the keyframes of the last reference."""
-        return max(self._stamps[i] for i in self._selection)
+    def selected_stamp(self) -> int | None:
+        """The newest stamp among the keyframes of the last reference (None: none)."""
+        return max((self._stamps[i] for i in self._selection), default=None)
 
     def selected_covariance(self) -> np.ndarray:
         """Mean pose covariance ``(3, 3)`` of the keyframes of the last reference."""
@@ -302,11 +302,11 @@ class LoopClosure:
         a later revisit there does not pull the pose back into the drifted frame. Returns
         the number of keyframes moved.
         """
-        keyframes = self.keyframes
-        if not keyframes._selection:  # no match was made: nothing to spread
+        since = self.keyframes.selected_stamp()
+        if since is None:  # no match was made: nothing to spread
             return 0
-        return keyframes.correct_since(
-            keyframes.selected_stamp(), keyframes.now, before, after, spread, before_cov
+        return self.keyframes.correct_since(
+            since, self.keyframes.now, before, after, spread, before_cov
         )
 
     def add(
