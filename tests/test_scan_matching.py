@@ -227,3 +227,72 @@ def test_selection_points_weigh_the_prior_against_a_few_more_inliers():
     assert np.hypot(*(chosen.pose[:2] - true[:2])) < 0.05
     with pytest.raises(ValueError, match="selection_points"):
         ScanMatcherConfig(selection_points=-1.0)
+
+
+def _counting_residuals(monkeypatch) -> list[int]:
+    """Patch the matcher's residual function to record the poses it evaluates per call."""
+    import vslam_gym.slam.scan_matching as sm
+
+    rows: list[int] = []
+    original = sm._residuals
+
+    def counting(poses, *args, **kwargs):
+        rows.append(poses.shape[0])
+        return original(poses, *args, **kwargs)
+
+    monkeypatch.setattr(sm, "_residuals", counting)
+    return rows
+
+
+def test_pruned_hypotheses_reach_the_same_pose_with_fewer_evaluations(monkeypatch):
+    ref_pose = np.array([2.0, 2.0, 0.6])
+    true = np.array([2.25, 2.15, 0.6 + np.deg2rad(15.0)])
+    local = _map(ref_pose, L_ROOM)
+    pts = _points(true, L_ROOM, 1)
+    rows = _counting_residuals(monkeypatch)
+    full = match_scan(pts, local, ref_pose, _cov(0.2, 8.0))
+    full_rows = sum(rows)
+    rows.clear()
+    config = ScanMatcherConfig(coarse_keep_after=2, coarse_keep=3, refine_keep_after=2)
+    pruned = match_scan(pts, local, ref_pose, _cov(0.2, 8.0), config=config)
+    assert full is not None and pruned is not None
+    assert full.hypotheses == pruned.hypotheses > 5
+    assert np.hypot(*(pruned.pose[:2] - full.pose[:2])) < 1e-3
+    assert abs(wrap_angle(pruned.pose[2] - full.pose[2])) < np.deg2rad(0.05)
+    assert np.allclose(pruned.cov, full.cov, rtol=0.05)
+    # two coarse steps with all, then ranked by the third's residuals: 3 go on
+    assert rows[:4] == [full.hypotheses] * 3 + [3]
+    assert sum(rows) < 0.6 * full_rows
+
+
+def test_refinement_keeps_the_rivals_of_an_ambiguous_match():
+    """Quarter turns of a square room have as many inliers: none is dropped early."""
+    square = polygon_edges([np.array([[-3.0, -3.0], [3.0, -3.0], [3.0, 3.0], [-3.0, 3.0]])])
+    local = LocalMap(ScanMatcherConfig())
+    for k in range(4):
+        pose = np.array([0.0, 0.0, k * np.pi / 2])
+        local.add(_points(pose, square, k), pose)
+    pts = _points(np.array([0.0, 0.0, np.deg2rad(10.0)]), square, 1)
+    config = ScanMatcherConfig(coarse_keep_after=2, refine_keep_after=1, refine_keep_ratio=0.8)
+    assert match_scan(pts, local, np.zeros(3), _cov(0.05, 30.0), config=config) is None
+
+
+def test_the_reference_table_is_points_normals_and_a_zero_sentinel():
+    local = _map(np.array([2.0, 2.0, 0.3]), L_ROOM)
+    ref = local.reference()
+    n = ref.points.shape[0]
+    assert ref.table.shape == (n + 1, 4)
+    assert np.array_equal(ref.table[:n, :2], ref.points)
+    assert np.array_equal(ref.table[:n, 2:], ref.normals)
+    assert not ref.table[n].any()
+    assert ref.tree.n == n
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [("coarse_keep_after", 1.5), ("coarse_keep_after", -1), ("refine_keep_after", True),
+     ("coarse_keep", 0), ("refine_keep_ratio", 1.5)],
+)  # fmt: skip
+def test_pruning_options_are_validated(name, value):
+    with pytest.raises(ValueError, match=name):
+        ScanMatcherConfig(**{name: value})
