@@ -7,7 +7,7 @@ import pytest
 from _raycast import bearings_deg, cast
 
 from vslam_gym.slam.config import ModelConfig, SensorConfig
-from vslam_gym.slam.creation import create_model, initial_grouping
+from vslam_gym.slam.creation import create_model, initial_grouping, several_groups
 from vslam_gym.slam.detection import beam_line_correspondence
 from vslam_gym.slam.gaussian import make_linearization
 from vslam_gym.slam.likelihood import exponential_rate, generalized_mahalanobis_sq, line_loglik
@@ -81,6 +81,9 @@ def test_initial_grouping_matches_one_at_a_time(config):
         groups = initial_grouping(mu_c, cov_c, config)
         assert groups == reference_grouping(mu_c, cov_c, config)
         assert groups[0][0] == 0 and groups[-1][1] == n - 1
+        assert several_groups(mu_c, cov_c, config) == (len(groups) > 1)
+        straight = np.stack([t, np.zeros(n)], axis=1)  # one line: a single group
+        assert not several_groups(straight, cov_c, config)
 
 
 def test_correspondence_without_distances_assigns_the_same_lines():

@@ -28,6 +28,7 @@ likelihoods meaningless; the line-based ones are not affected.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -268,6 +269,21 @@ def initial_grouping(
     Returns:
         Groups ``(a, b)`` of local indices (inclusive); consecutive groups share ``b``.
     """
+    return list(_groups(mu_c, cov_c, config))
+
+
+def several_groups(mu_c: np.ndarray, cov_c: np.ndarray, config: ModelConfig) -> bool:
+    """Whether :func:`initial_grouping` finds more than one group (4.3.3's test).
+
+    Stops at the first group that ends before the last measurement instead of grouping
+    them all.
+    """
+    first = next(_groups(mu_c, cov_c, config))
+    return first[1] < mu_c.shape[0] - 1
+
+
+def _groups(mu_c: np.ndarray, cov_c: np.ndarray, config: ModelConfig) -> Iterator[tuple[int, int]]:
+    """:func:`initial_grouping`'s groups, in order, as they are found."""
     n = mu_c.shape[0]
     start = config.min_group_size - 1
     # Prefix sums make each trial line fit O(1). For one group start ``a`` the trial ends
@@ -278,7 +294,6 @@ def initial_grouping(
     np.cumsum([np.ones(n), x, y, x * x, y * y, x * y], axis=1, out=cs[:, 1:])
     cxx, cxy, cyy = cov_c[:, 0, 0], cov_c[:, 0, 1], cov_c[:, 1, 1]
     limit = config.grouping_mahalanobis**2
-    groups: list[tuple[int, int]] = []
     a, b = 0, start
     batch = _GROUPING_BATCH
     while b < n:
@@ -298,12 +313,11 @@ def initial_grouping(
             batch *= 2
             continue
         b = int(ends[failed[0]])
-        groups.append((a, b - 1))
+        yield a, b - 1
         a = b - 1
         b = a + start
         batch = _GROUPING_BATCH
-    groups.append((a, n - 1))
-    return groups
+    yield a, n - 1
 
 
 # ------------------------------------------------------------- Algorithms 1-2

@@ -37,7 +37,7 @@ from scipy.special import gammaincinv
 
 from vslam_gym.config_utils import check_keys
 from vslam_gym.slam.config import FilterConfig, ModelConfig, SensorConfig
-from vslam_gym.slam.creation import create_model, initial_grouping
+from vslam_gym.slam.creation import create_model, several_groups
 from vslam_gym.slam.creation import point_covariances as _point_covariances
 from vslam_gym.slam.detection import detect_many, model_parts
 from vslam_gym.slam.gaussian import inflated_information, make_linearization, symmetrize
@@ -815,7 +815,7 @@ class VertexSLAM:
         z[0::2] = scan.ranges[first : last + 1]
         z[1::2] = scan.bearings[first : last + 1]
         mu_c, cov_c = _point_covariances(z, pose, self.sensor, self._lin)
-        return len(initial_grouping(mu_c, cov_c, self.config.model)) > 1
+        return several_groups(mu_c, cov_c, self.config.model)
 
     def _set_points(self, scan: Scan, first: int, last: int, pose: np.ndarray) -> np.ndarray:
         r = scan.ranges[first : last + 1]
