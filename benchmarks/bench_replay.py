@@ -1,18 +1,18 @@
 """Per-scan time of the SLAM on the Radish logs (issue #6: median at most 10 ms).
 
 For each log and odometry mode the whole log is replayed ``--repeats`` times
-(``vslam_gym.replay.replay``, preset ``logs`` unless ``--preset``), one run at a time in
-this process; each run's per-scan filter time (``Belief.step_ms``: the scan matcher,
+(``vslam_gym.replay.replay``, preset ``logs`` unless ``--preset``), one run at a time;
+each run's per-scan filter time (``Belief.step_ms``: the scan matcher,
 the loop closure, the landmark layer; not the log reading) gives a median and a 95th
 percentile. The table prints the median over the repeats of each (and their range),
 with the position ATE of the first run (the same every run: the replay is
 deterministic). The published scan-matching baselines of the data README take 12-35 ms
 per scan.
 
-``--compare DIR`` alternates every run with the same run of another checkout of the
-package (``PYTHONPATH=DIR``, in a subprocess; its preset without ``--set``), so that
-two versions are timed in the same minutes: these machines are noisy, compare ratios
-within one run.
+Every run is a fresh Python process (``PYTHONPATH``: this checkout). ``--compare DIR``
+alternates every run with the same run of another checkout of the package
+(``PYTHONPATH=DIR``; its preset without ``--set``), so that two versions are timed in
+the same minutes: these machines are noisy, compare ratios within one run.
 
 The machine (CPU, cores, Python, numpy) and the load average before and after are
 printed.
@@ -36,11 +36,12 @@ from pathlib import Path
 import numpy as np
 
 from vslam_gym.evaluation import machine_description
-from vslam_gym.replay import replay
 
 TARGET_MEDIAN_MS = 10.0
 """Issue #6's target: median filter time per scan [ms]."""
-DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "radish"
+THIS_CHECKOUT = Path(__file__).resolve().parents[1]
+"""The checkout this script belongs to (its package is the one timed)."""
+DEFAULT_DATA = THIS_CHECKOUT.parent / "shared" / "data" / "radish"
 """Where the logs are in this project's layout (``--data`` to change it)."""
 SYNTHETIC_SEED = 0
 """Seed of the synthetic odometry timed."""
@@ -51,7 +52,7 @@ log, odometry, seed, preset, overrides = sys.argv[1:6]
 m = replay(log, odometry, int(seed), preset, overrides=json.loads(overrides))["metrics"]
 print(json.dumps([m[k] for k in ("step_ms_median", "step_ms_p95", "ate_rmse_m")]))
 """
-"""The same run in another checkout (``--compare``)."""
+"""One replay in a fresh process; prints its median, p95 and ATE as JSON."""
 
 
 def load_average() -> str:
@@ -62,16 +63,10 @@ def load_average() -> str:
         return "n/a"
 
 
-def run_here(log: Path, odometry: str, preset: str, overrides: dict) -> tuple[float, ...]:
-    """``(median ms, p95 ms, ATE m)`` of one replay with this checkout."""
-    m = replay(log, odometry, SYNTHETIC_SEED, preset, overrides=overrides)["metrics"]
-    return m["step_ms_median"], m["step_ms_p95"], m["ate_rmse_m"]
-
-
-def run_other(
+def run(
     checkout: Path, log: Path, odometry: str, preset: str, overrides: dict
 ) -> tuple[float, ...]:
-    """The same with the package of ``checkout`` (a subprocess, ``PYTHONPATH``)."""
+    """``(median ms, p95 ms, ATE m)`` of one replay with the package of ``checkout``."""
     env = {**os.environ, "PYTHONPATH": str(checkout)}
     args = [str(log), odometry, str(SYNTHETIC_SEED), preset, json.dumps(overrides)]
     out = subprocess.run(
@@ -115,9 +110,9 @@ def main() -> None:
         for odometry in args.odometry:
             here, other = [], []
             for _ in range(args.repeats):
-                here.append(run_here(log, odometry, args.preset, overrides))
+                here.append(run(THIS_CHECKOUT, log, odometry, args.preset, overrides))
                 if args.compare is not None:
-                    other.append(run_other(args.compare, log, odometry, args.preset, {}))
+                    other.append(run(args.compare, log, odometry, args.preset, {}))
             rows.append((name, odometry, "this", summary(here)))
             if other:
                 rows.append((name, odometry, "compare", summary(other)))

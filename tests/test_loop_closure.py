@@ -187,6 +187,22 @@ def test_sigma_floor_widens_the_measurement_and_cooldown_skips_matches():
     assert cooling.match(scan, true, GATE_COV, now=110) is not None
 
 
+def test_right_after_a_fused_match_tracking_starts_from_the_predicted_heading_only():
+    loop, rng = _closure(track_hypotheses=1)
+    true = np.array([1.2, -0.8, 0.25])
+    first = loop.match(scan_at(true, rng), true, GATE_COV, now=100)
+    assert first is not None and first.match.hypotheses > 1
+    loop.fused(100)
+    tracked = loop.match(scan_at(true, rng), true, GATE_COV, now=101)
+    assert tracked is not None and tracked.match.hypotheses == 1
+    assert np.hypot(*(tracked.pose[:2] - true[:2])) < 0.03
+    # not right after a fused match: the spread again
+    assert loop.match(scan_at(true, rng), true, GATE_COV, now=103).match.hypotheses > 1
+    plain, _ = _closure()
+    plain.fused(100)
+    assert plain.match(scan_at(true, rng), true, GATE_COV, now=101).match.hypotheses > 1
+
+
 def _drive(loop_closure: bool, steps: int = 150, **options):
     """Around the pillar and back to the start, the odometry turning 0.4 deg a step too
     far to the left; returns the beliefs and the true poses."""
@@ -242,6 +258,7 @@ def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
         ({"loop_min_inlier_fraction": 1.5}, "loop_min_inlier_fraction"),
         ({"loop_min_age": 0}, "loop_min_age"),
         ({"loop_cooldown": -1}, "loop_cooldown"),
+        ({"loop_track_hypotheses": 1.5}, "loop_track_hypotheses"),
         ({"loop_min_innovation": -1.0}, "loop_min_innovation"),
         ({"loop_sigma_floor": (0.1, -0.1, 0.0)}, "loop_sigma_floor"),
         ({"loop_strong_inlier_fraction": -0.1}, "loop_strong_inlier_fraction"),

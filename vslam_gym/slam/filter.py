@@ -774,6 +774,7 @@ class VertexSLAM:
             strong_max_mahalanobis=cfg.loop_strong_max_mahalanobis,
             sigma_floor=cfg.loop_sigma_floor,
             cooldown=cfg.loop_cooldown,
+            track_hypotheses=cfg.loop_track_hypotheses,
             max_distance_start=cfg.loop_max_distance_start,
             max_distance_mid=cfg.loop_max_distance_mid,
         )

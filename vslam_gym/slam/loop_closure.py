@@ -198,6 +198,9 @@ class LoopClosure:
             their overconfident covariance).
         cooldown: after a fused match (:meth:`fused`), this many measurement updates
             pass before the next match is tried; 0: every one.
+        track_hypotheses: right after a fused match (the previous measurement
+            update's), at most this many heading hypotheses (1: the predicted heading
+            only); 0: always the spread over ``gate_cov``'s heading variance.
         max_distance_start: the matcher's first correspondence distance [m] for the
             revisit match (None: ``matcher``'s): a drift beyond it is not pulled in ...
         max_distance_mid: ... and its distance [m] at the end of the coarse phase.
@@ -214,6 +217,7 @@ class LoopClosure:
         max_mahalanobis: float,
         sigma_floor: tuple[float, float, float] = (0.0, 0.0, 0.0),
         cooldown: int = 0,
+        track_hypotheses: int = 0,
         max_distance_start: float | None = None,
         max_distance_mid: float | None = None,
         strong_inlier_fraction: float = 1.0,
@@ -239,6 +243,11 @@ class LoopClosure:
         self.strong_max_mahalanobis = float(strong_max_mahalanobis)
         self.floor_cov = np.diag(np.square(np.asarray(sigma_floor, dtype=float)))
         self.cooldown = int(cooldown)
+        self._tracking = (
+            replace(self.keyframes.config, max_hypotheses=int(track_hypotheses))
+            if track_hypotheses > 0
+            else None
+        )
         self._last_fused: int | None = None
 
     def fused(self, now: int) -> None:
@@ -261,10 +270,11 @@ class LoopClosure:
         self.keyframes.now = int(now)
         if self._last_fused is not None and now - self._last_fused < self.cooldown:
             return None
+        config = self.keyframes.config
+        if self._tracking is not None and self._last_fused == now - 1:
+            config = self._tracking  # the belief agrees with the earlier visit already
         try:
-            result = match_scan(
-                points, self.keyframes, pose, gate_cov, self.keyframes.config, use_prior=False
-            )
+            result = match_scan(points, self.keyframes, pose, gate_cov, config, use_prior=False)
         except (ValueError, np.linalg.LinAlgError):  # degenerate numbers: no match
             return None
         if result is None or result.inlier_fraction < self.min_inlier_fraction:
