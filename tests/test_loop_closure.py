@@ -240,6 +240,29 @@ def test_corrected_keyframes_still_close_the_loop():
     assert np.linalg.eigvalsh(slam._sigma).min() > 0
 
 
+def test_tracking_after_fused_matches_still_closes_the_loop_in_the_filter(monkeypatch):
+    import vslam_gym.slam.loop_closure as lc
+
+    hypotheses: list[int] = []
+    original = lc.match_scan
+
+    def counting(*args, **kwargs):
+        result = original(*args, **kwargs)
+        if result is not None:
+            hypotheses.append(result.hypotheses)
+        return result
+
+    monkeypatch.setattr(lc, "match_scan", counting)
+    slam, beliefs, true = _drive(True, loop_track_hypotheses=1)
+    closed = [b.loop_closed for b in beliefs]
+    assert sum(closed) > 5
+    assert 1 in hypotheses and max(hypotheses) > 1  # tracking right after fused ones only
+    assert np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2])) < 0.1
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+    assert SlamConfig.logs().filter.loop_track_hypotheses == 1
+    assert SlamConfig().filter.loop_track_hypotheses == 0
+
+
 def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
     _, every, _ = _drive(True)
     _, some, _ = _drive(True, loop_min_innovation=0.5)
