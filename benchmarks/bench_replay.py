@@ -2,12 +2,12 @@
 
 For each log and odometry mode the whole log is replayed ``--repeats`` times
 (``vslam_gym.replay.replay``, preset ``logs`` unless ``--preset``), one run at a time;
-each run's per-scan filter time (``Belief.step_ms``: the scan matcher,
-the loop closure, the landmark layer; not the log reading) gives a median and a 95th
-percentile. The table prints the median over the repeats of each (and their range),
-with the position ATE of the first run (the same every run: the replay is
-deterministic). The published scan-matching baselines of the data README take 12-35 ms
-per scan.
+each run's per-scan filter time (``Belief.step_ms``; not the log reading) gives a
+median and a 95th percentile, and its parts (``Belief.step_ms_parts``: the motion update
+with the whole-scan matcher, the loop closure, the landmark layer) a mean each. The
+table prints the median over the repeats of each (and the range of the medians), with
+the position ATE of the first run (the same every run: the replay is deterministic).
+The published scan-matching baselines of the data README take 12-35 ms per scan.
 
 Every run is a fresh Python process (``PYTHONPATH``: this checkout). ``--compare DIR``
 alternates every run with the same run of another checkout of the package
@@ -50,7 +50,10 @@ import json, sys
 from vslam_gym.replay import replay
 log, odometry, seed, preset, overrides = sys.argv[1:6]
 m = replay(log, odometry, int(seed), preset, overrides=json.loads(overrides))["metrics"]
-print(json.dumps([m[k] for k in ("step_ms_median", "step_ms_p95", "ate_rmse_m")]))
+split = m.get("step_ms_parts", {})  # NaN for a checkout without it
+names = ("motion", "loop_closure", "landmarks")
+parts = [split.get(k, {}).get("mean", float("nan")) for k in names]
+print(json.dumps([m[k] for k in ("step_ms_median", "step_ms_p95", "ate_rmse_m")] + parts))
 """
 """One replay in a fresh process; prints its median, p95 and ATE as JSON."""
 
@@ -66,11 +69,17 @@ def load_average() -> str:
 def run(
     checkout: Path, log: Path, odometry: str, preset: str, overrides: dict
 ) -> tuple[float, ...]:
-    """``(median ms, p95 ms, ATE m)`` of one replay with the package of ``checkout``."""
+    """``(median ms, p95 ms, ATE m, mean ms of the motion / loop closure / landmarks parts)``
+    of one replay with the package of ``checkout``."""
     env = {**os.environ, "PYTHONPATH": str(checkout)}
     args = [str(log), odometry, str(SYNTHETIC_SEED), preset, json.dumps(overrides)]
-    out = subprocess.run(
-        [sys.executable, "-c", _RUN, *args], env=env, capture_output=True, text=True, check=True
+    out = subprocess.run(  # cwd: ``-c`` puts it first on sys.path, before PYTHONPATH
+        [sys.executable, "-c", _RUN, *args],
+        env=env,
+        cwd=checkout,
+        capture_output=True,
+        text=True,
+        check=True,
     )
     return tuple(json.loads(out.stdout.strip().splitlines()[-1]))
 
@@ -84,6 +93,7 @@ def summary(runs: list[tuple[float, ...]]) -> dict[str, float]:
         "median_hi": float(a[:, 0].max()),
         "p95": float(np.median(a[:, 1])),
         "ate": float(a[0, 2]),
+        "parts": [float(v) for v in np.median(a[:, 3:6], axis=0)],
     }
 
 
@@ -124,14 +134,19 @@ def main() -> None:
         f"{SYNTHETIC_SEED}; target: median <= {TARGET_MEDIAN_MS:g} ms"
     )
     print(f"{'log':6s} {'odometry':9s} {'code':7s} {'median':>7s} {'range':>13s} "
-          f"{'p95':>6s} {'ATE m':>6s} met")  # fmt: skip
+          f"{'p95':>6s} {'motion':>7s} {'loop':>6s} {'landm.':>6s} {'ATE m':>6s} met")  # fmt: skip
     for name, odometry, code, s in rows:
         met = "yes" if s["median"] <= TARGET_MEDIAN_MS else "NO"
         span = f"{s['median_lo']:.1f}-{s['median_hi']:.1f}"
+        motion, loop, landmarks = s["parts"]
         print(
             f"{name:6s} {odometry:9s} {code:7s} {s['median']:7.1f} {span:>13s} "
-            f"{s['p95']:6.1f} {s['ate']:6.3f} {met}"
+            f"{s['p95']:6.1f} {motion:7.1f} {loop:6.1f} {landmarks:6.1f} {s['ate']:6.3f} {met}"
         )
+    print(
+        "motion / loop / landm.: mean ms per scan of the step's parts (Belief.step_ms_parts: "
+        "the motion update with the whole-scan matcher, the loop closure, the landmark layer)"
+    )
     if args.compare is not None:
         for name, odometry, code, s in rows:
             if code == "compare":

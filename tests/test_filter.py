@@ -622,3 +622,25 @@ def test_observation_model_heading_sigma_keeps_the_heading_less_certain():
     assert sd[0.02] > 1.2 * sd[0.0], sd
     with pytest.raises(ValueError, match="observation_model_heading_sigma"):
         SlamConfig.from_dict({"filter": {"observation_model_heading_sigma": -0.01}})
+
+
+def test_step_time_parts_are_non_negative_and_within_the_step():
+    from dataclasses import replace
+
+    from vslam_gym.slam.filter import STEP_PARTS
+
+    _, beliefs, _, _ = run(SlamConfig(), steps=15)
+    for b in beliefs:
+        assert tuple(b.step_ms_parts) == STEP_PARTS
+        assert all(v >= 0.0 for v in b.step_ms_parts.values())
+        assert sum(b.step_ms_parts.values()) <= b.step_ms * 1.001 + 1e-3
+        assert b.step_ms_parts["landmarks"] > 0.0  # every step measures here
+    # a motion filter that skips the measurement update: only the motion part runs
+    config = SlamConfig()
+    config = replace(config, filter=replace(config.filter, measurement_min_travel=100.0))
+    _, beliefs, _, _ = run(config, steps=5)
+    skipped = [b for b in beliefs if not b.measured]
+    assert skipped
+    for b in skipped:
+        assert b.step_ms_parts["landmarks"] == 0.0 == b.step_ms_parts["loop_closure"]
+        assert b.step_ms_parts["motion"] > 0.0

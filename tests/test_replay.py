@@ -30,6 +30,7 @@ KEYS = {
     "landmarks",
     "step_ms_median",
     "step_ms_p95",
+    "step_ms_parts",
 }
 
 
@@ -56,6 +57,10 @@ def test_first_50_intel_scans_complete_and_beat_dead_reckoning(tmp_path):
     assert metrics["completed"] and metrics["scans"] == 50
     assert np.isfinite(metrics["ate_rmse_m"])
     assert metrics["ate_rmse_m"] < metrics["odom_ate_rmse_m"]
+    parts = metrics["step_ms_parts"]
+    assert set(parts) == {"motion", "loop_closure", "landmarks"}
+    assert all(0.0 <= p["median"] and 0.0 <= p["mean"] for p in parts.values())
+    assert parts["motion"]["mean"] > 0.0 and parts["landmarks"]["mean"] > 0.0
     for name in ("trajectories.png", "map.png", "slam.tum", "true.tum", "odometry.tum"):
         assert (tmp_path / name).stat().st_size > 0
 

@@ -100,7 +100,9 @@ def replay(
     Returns:
         A dict with ``metrics`` (``scans``, ``completed``, ``ate_rmse_m``,
         ``odom_ate_rmse_m``, ``final_error_m``, ``heading_rmse_rad``, ``landmarks``,
-        ``step_ms_median``, ``step_ms_p95``, ``prealign``, ``prealigned_fraction`` (steps
+        ``step_ms_median``, ``step_ms_p95``, ``step_ms_parts`` (per part of a step,
+        ``Belief.step_ms_parts``: its ``median`` and ``mean`` over the scans [ms]),
+        ``prealign``, ``prealigned_fraction`` (steps
         that used the whole-scan match), ``range_perturbation``, ``sensor`` (the lidar
         model: FOV and resolution from the log's bearings, maximum range, noise, offset),
         ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``),
@@ -132,6 +134,7 @@ def replay(
     slam = VertexSLAM(sensor, config, initial_pose=log.poses[0])
     slam_poses: list[np.ndarray] = []
     step_ms: list[float] = []
+    parts: dict[str, list[float]] = {}
     prealigned = loop_closures = 0
     completed, error = True, ""
     bar = progress_bar(n, Path(path).name, progress, leave=True, unit="scan")
@@ -147,6 +150,8 @@ def replay(
             break
         slam_poses.append(belief.robot_pose)
         step_ms.append(belief.step_ms)
+        for name, ms in belief.step_ms_parts.items():
+            parts.setdefault(name, []).append(ms)
         prealigned += int(belief.prealigned)
         loop_closures += int(belief.loop_closed)
         if bar is not None:
@@ -173,6 +178,10 @@ def replay(
         "landmarks": len(belief.landmarks),
         "step_ms_median": median_ms,
         "step_ms_p95": p95_ms,
+        "step_ms_parts": {
+            name: {"median": float(np.median(ms)), "mean": float(np.mean(ms))}
+            for name, ms in parts.items()
+        },
         "prealign": config.filter.prealign,
         "prealigned_fraction": prealigned / max(len(step_ms), 1),
         "range_perturbation": float(range_perturbation),

@@ -96,6 +96,8 @@ from vslam_gym.slam.threads import blas_threads as blas_limit
 from vslam_gym.slam.threads import check_blas_threads
 from vslam_gym.slam.update import update_model, update_unknown_lines, wrap_model
 
+STEP_PARTS = ("motion", "loop_closure", "landmarks")
+"""The parts of a step timed in ``Belief.step_ms_parts``."""
 LOGS_OBSERVATION_INFORMATION_SCALE = 0.1
 """``FilterConfig.observation_information_scale`` of the ``logs`` preset. First 300
 scans, synthetic seeds 0-1 and logged, with ``create_beside_candidates=False``
@@ -349,6 +351,12 @@ class Belief:
         pruned: ids of the landmarks removed in the last step as covered duplicates
             (``FilterConfig.prune_covered_distance``).
         loop_closed: the last step fused a revisit match (``FilterConfig.loop_closure``).
+        step_ms_parts: wall time [ms] of the last step's parts (:data:`STEP_PARTS`):
+            ``"motion"`` (the motion update, with the whole-scan matcher when
+            ``prealign`` is on), ``"loop_closure"`` (the revisit match and its update),
+            ``"landmarks"`` (association, landmark updates and creation, pruning, the
+            revisit keyframe); a part that did not run is 0. They add up to
+            ``step_ms`` up to the bookkeeping between them.
     """
 
     step: int
@@ -363,6 +371,7 @@ class Belief:
     measured: bool = False
     pruned: tuple[int, ...] = ()
     loop_closed: bool = False
+    step_ms_parts: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -562,6 +571,7 @@ class VertexSLAM:
         self._step = 0
         self._decisions: tuple[SetDecision, ...] = ()
         self._step_ms = 0.0
+        self._step_ms_parts: dict[str, float] = dict.fromkeys(STEP_PARTS, 0.0)
         self._local_map = LocalMap(self.config.matcher)
         self._matcher_pose = self._mu[:3].copy()  # "odometry": pose in the matcher's frame
         self._normals: tuple[np.ndarray, np.ndarray] | None = None  # the step's scan normals
@@ -601,6 +611,7 @@ class VertexSLAM:
             measured=self._measured,
             pruned=self._pruned,
             loop_closed=self._loop_closed,
+            step_ms_parts=dict(self._step_ms_parts),
         )
 
     def step(self, odometry, ranges, bearings) -> Belief:
@@ -633,6 +644,9 @@ class VertexSLAM:
         mode = self.config.filter.prealign
         points = None  # the scan's lidar-frame points, for the whole-scan matcher
         self._normals = None  # their normals, once computed (both keyframe maps use them)
+        parts = dict.fromkeys(STEP_PARTS, 0.0)
+        self._step_ms_parts = parts
+        start = time.perf_counter()
         if mode != "none":
             points = scan_points(scan.ranges, scan.bearings, scan.max_range)
         if mode == "none":
@@ -647,12 +661,16 @@ class VertexSLAM:
         self._measured = self._moved_enough()
         self._pruned = ()
         self._loop_closed = False
+        parts["motion"] = (time.perf_counter() - start) * 1e3
         if self._measured:
             self._measurements += 1
             if self._loop is not None:
+                start = time.perf_counter()
                 if points is None:  # only steps that measure need them
                     points = scan_points(scan.ranges, scan.bearings, scan.max_range)
                 self._loop_closed = self._close_loop(points)
+                parts["loop_closure"] = (time.perf_counter() - start) * 1e3
+            start = time.perf_counter()
             self._decisions = tuple(self._measurement_update(scan))
             self._refresh_models()
             if self.config.filter.prune_covered_distance > 0.0:
@@ -662,10 +680,13 @@ class VertexSLAM:
                 self._loop.add(
                     points, self._mu[:3], self._sigma[:3, :3], self._measurements, self._normals
                 )
+            parts["landmarks"] = (time.perf_counter() - start) * 1e3
         else:
             self._decisions = ()
         if mode == "fuse":
+            start = time.perf_counter()
             self._local_map.add(points, self._mu[:3])
+            parts["motion"] += (time.perf_counter() - start) * 1e3
 
     def _moved_enough(self) -> bool:
         """Whether the motion filter lets this step run the measurement update.
@@ -1813,6 +1834,7 @@ def _object_span(u: np.ndarray, threshold: float) -> tuple[int, int]:
 __all__ = [
     "Belief",
     "LandmarkView",
+    "STEP_PARTS",
     "SetDecision",
     "SlamConfig",
     "VertexSLAM",
