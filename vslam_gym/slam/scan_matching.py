@@ -512,6 +512,11 @@ class _Prior:
     mean: np.ndarray  # (3,)
     info: np.ndarray  # (3, 3) inverse covariance, or zeros
 
+    @property
+    def used(self) -> bool:
+        """Whether the term is in the cost (``info`` not all zero)."""
+        return bool(self.info.any())
+
     def offset(self, poses: np.ndarray) -> np.ndarray:
         d = poses - self.mean
         d[:, 2] = wrap_angle(d[:, 2])
@@ -604,7 +609,6 @@ def _gauss_newton(
     """
     poses = starts.copy()
     scan_info = 1.0 / config.robust_scale**2  # the prior only breaks ties (corridors)
-    damping = np.eye(3) * np.finfo(float).eps ** 0.5
     for k, gate in enumerate(gates):
         res = _residuals(poses, points, reference, float(gate))
         if 0 < keep_after == k and poses.shape[0] > 1:
@@ -613,20 +617,35 @@ def _gauss_newton(
                 poses = poses[kept]
                 res = res.take(kept)
         hess, grad = _normal_equations(res, _cauchy(res, config.robust_scale))
-        hess = scan_info * hess + prior.info
-        grad = scan_info * grad + prior.offset(poses) @ prior.info
+        hess, grad = scan_info * hess, scan_info * grad
+        if prior.used:  # adding a zero term changes nothing: skipped
+            hess = hess + prior.info
+            grad = grad + prior.offset(poses) @ prior.info
         ok = res.matched.sum(axis=1) >= config.min_points
-        if not np.any(ok):
+        if ok.all():  # the usual case: no copies
+            step = _damped_step(hess, grad)
+            poses += step
+        elif ok.any():
+            step = _damped_step(hess[ok], grad[ok])
+            poses[ok] += step
+        else:
             break
-        scale = np.maximum(np.trace(hess[ok], axis1=1, axis2=2), 1.0)[:, None, None]
-        step = -np.linalg.solve(hess[ok] + damping * scale, grad[ok][..., None])[..., 0]
-        poses[ok] += step
-        if np.all(np.hypot(step[:, 0], step[:, 1]) < config.converged_translation) and np.all(
-            np.abs(step[:, 2]) < config.converged_rotation
-        ):
+        if (np.abs(step[:, 2]) < config.converged_rotation).all() and (
+            np.hypot(step[:, 0], step[:, 1]) < config.converged_translation
+        ).all():
             break
     poses[:, 2] = wrap_angle(poses[:, 2])
     return poses
+
+
+_DAMPING = np.eye(3) * np.finfo(float).eps ** 0.5
+"""Relative Levenberg damping of :func:`_gauss_newton`'s steps (times the trace of H)."""
+
+
+def _damped_step(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """``-(H + damping tr(H) I)^-1 g`` per pose: ``hess`` ``(h, 3, 3)``, ``grad`` ``(h, 3)``."""
+    scale = np.maximum(np.trace(hess, axis1=1, axis2=2), 1.0)[:, None, None]
+    return -np.linalg.solve(hess + _DAMPING * scale, grad[..., None])[..., 0]
 
 
 def _kept(res: _Residuals, keep: int | None, ratio: float, config: ScanMatcherConfig) -> np.ndarray:
