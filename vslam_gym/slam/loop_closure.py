@@ -62,12 +62,20 @@ class RevisitKeyframes(LocalMap):
         self.now = 0  # the current measurement update
         self._stamps: list[int] = []
         self._covs: list[np.ndarray] = []
+        self._table: tuple[np.ndarray, np.ndarray] | None = None  # stamps, poses (cache)
 
     def clear(self) -> None:
         """Forget every keyframe."""
         super().clear()
         self._stamps.clear()
         self._covs.clear()
+        self._table = None
+
+    def _stamps_and_poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(K,)`` stamps and ``(K, 3)`` poses of the keyframes as arrays (cached)."""
+        if self._table is None or self._table[0].size != len(self._poses):
+            self._table = (np.array(self._stamps), np.array(self._poses))
+        return self._table
 
     def add_keyframe(
         self,
@@ -91,10 +99,11 @@ class RevisitKeyframes(LocalMap):
     def _select(self, near: np.ndarray | None) -> tuple[int, ...]:
         if near is None or not self._poses:
             return ()
-        old = np.flatnonzero(np.array(self._stamps) <= self.now - self.min_age)
+        stamps, all_poses = self._stamps_and_poses()
+        old = np.flatnonzero(stamps <= self.now - self.min_age)
         if old.size == 0:
             return ()
-        poses = np.array([self._poses[i] for i in old.tolist()])
+        poses = all_poses[old]
         dist = np.hypot(poses[:, 0] - near[0], poses[:, 1] - near[1])
         order = np.argsort(dist, kind="stable")
         close = old[order[dist[order] <= self.config.revisit_radius]]
@@ -145,7 +154,7 @@ class RevisitKeyframes(LocalMap):
                 [pose[0] + step[0], pose[1] + step[1], float(wrap_angle(pose[2] + step[2]))]
             )
         if later:
-            self._reference, self._selection = None, ()
+            self._reference, self._selection, self._table = None, (), None
         return len(later)
 
     def selected_stamp(self) -> int | None:
