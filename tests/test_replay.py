@@ -35,7 +35,7 @@ KEYS = {
 
 
 @pytest.mark.skipif(not INTEL.exists(), reason="the Intel log is not in the shared folder")
-def test_first_50_intel_scans_complete_and_beat_dead_reckoning(tmp_path):
+def test_first_50_intel_scans_complete_and_beat_dead_reckoning(tmp_path, capsys):
     assert (
         main(
             [
@@ -61,6 +61,8 @@ def test_first_50_intel_scans_complete_and_beat_dead_reckoning(tmp_path):
     assert set(parts) == {"motion", "loop_closure", "landmarks"}
     assert all(0.0 <= p["median"] and 0.0 <= p["mean"] for p in parts.values())
     assert parts["motion"]["mean"] > 0.0 and parts["landmarks"]["mean"] > 0.0
+    printed = capsys.readouterr().out
+    assert f"step_ms_mean motion {parts['motion']['mean']:.1f} / loop_closure" in printed
     for name in ("trajectories.png", "map.png", "slam.tum", "true.tum", "odometry.tum"):
         assert (tmp_path / name).stat().st_size > 0
 

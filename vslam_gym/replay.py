@@ -344,8 +344,13 @@ def summarize_seeds(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
 
 def _summary_line(metrics: Mapping[str, Any]) -> str:
+    def shown(k: str, v: Any) -> str:
+        if k == "step_ms_parts":  # the means [ms]
+            return "step_ms_mean " + " / ".join(f"{p} {s['mean']:.1f}" for p, s in v.items())
+        return f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
+
     return ", ".join(
-        f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
+        shown(k, v)
         for k, v in metrics.items()
         if (k != "overrides" or v) and k != "sensor"  # overrides only when there are any
     )
