@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vslam_gym.evaluation import machine_description
+from vslam_gym.evaluation import load_average, machine_description
 
 TARGET_MEDIAN_MS = 10.0
 """Issue #6's target: median filter time per scan [ms]."""
@@ -56,14 +56,6 @@ parts = [split.get(k, {}).get("mean", float("nan")) for k in names]
 print(json.dumps([m[k] for k in ("step_ms_median", "step_ms_p95", "ate_rmse_m")] + parts))
 """
 """One replay in a fresh process; prints its median, p95 and ATE as JSON."""
-
-
-def load_average() -> str:
-    """1-minute load average, or "n/a"."""
-    try:
-        return f"{os.getloadavg()[0]:.2f}"
-    except OSError:
-        return "n/a"
 
 
 def run(

@@ -23,12 +23,11 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
 import numpy as np
 
-from vslam_gym.evaluation import machine_description, run_episode, timing_summary
+from vslam_gym.evaluation import load_average, machine_description, run_episode, timing_summary
 
 TARGET_MEDIAN_MS = {"house": 10.0}
 """Target median step time [ms] of the default preset, by world."""
@@ -36,14 +35,6 @@ THESIS_STEP_MS = 1800.0
 """The thesis's reported time per step [ms] (for reference)."""
 TAIL_FRACTION = 0.1
 """The 'late' column is the median over this last fraction of the steps."""
-
-
-def load_average() -> str:
-    """1-minute load average, or "n/a"."""
-    try:
-        return f"{os.getloadavg()[0]:.2f}"
-    except OSError:
-        return "n/a"
 
 
 def bench(world: str, preset: str, seed: int, max_steps: int | None) -> dict[str, object]:

@@ -1117,6 +1117,14 @@ def in_workers(
             bar.close()
 
 
+def load_average() -> str:
+    """The 1-minute load average for timing figures, or "n/a" where there is none."""
+    try:
+        return f"{os.getloadavg()[0]:.2f}"
+    except OSError:
+        return "n/a"
+
+
 def machine_description() -> str:
     """CPU, core count, Python and numpy versions, for timing figures."""
     cpu = platform.processor() or platform.machine()
