@@ -511,11 +511,7 @@ class _Prior:
 
     mean: np.ndarray  # (3,)
     info: np.ndarray  # (3, 3) inverse covariance, or zeros
-
-    @property
-    def used(self) -> bool:
-        """Whether the term is in the cost (``info`` not all zero)."""
-        return bool(self.info.any())
+    used: bool  # the term is in the cost (``info`` not all zero)
 
     def offset(self, poses: np.ndarray) -> np.ndarray:
         d = poses - self.mean
@@ -532,12 +528,16 @@ class _Prior:
 class _Residuals:
     system: np.ndarray  # (h, n, 4): d r / d [x, y, theta] and r, one row per point
     matched: np.ndarray  # (h, n) bool: a neighbour within the gate
-    normals: np.ndarray  # (h, n, 2)
 
     @property
     def r(self) -> np.ndarray:
         """``(h, n)`` signed point-to-line distances [m] (0 when unmatched)."""
         return self.system[..., 3]
+
+    @property
+    def normals(self) -> np.ndarray:
+        """``(h, n, 2)`` the neighbours' normals: ``d r / d [x, y]`` (0 when unmatched)."""
+        return self.system[..., :2]
 
     @property
     def jac(self) -> np.ndarray:
@@ -546,7 +546,7 @@ class _Residuals:
 
     def take(self, rows: np.ndarray) -> _Residuals:
         """The residuals of the poses ``rows`` only."""
-        return _Residuals(self.system[rows], self.matched[rows], self.normals[rows])
+        return _Residuals(self.system[rows], self.matched[rows])
 
 
 def _residuals(
@@ -572,7 +572,7 @@ def _residuals(
     system[..., :2] = q[..., 2:]
     np.subtract(ny * rx, nx * ry, out=system[..., 2])
     system[..., 3] = nx * (wx - q[..., 0]) + ny * (wy - q[..., 1])
-    return _Residuals(system, idx < reference.points.shape[0], q[..., 2:])
+    return _Residuals(system, idx < reference.points.shape[0])
 
 
 def _normal_equations(res: _Residuals, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -762,7 +762,7 @@ def match_scan_why(
         return None, "empty"
     if points.shape[0] < config.min_points:
         return None, "few_points"
-    term = _Prior(prior, info)
+    term = _Prior(prior, info, bool(info.any()))
     starts = _hypotheses(prior, float(np.sqrt(max(prior_cov[2, 2], 0.0))), config)
     coarse = points[:: config.coarse_stride]
     poses = _gauss_newton(
