@@ -357,6 +357,58 @@ def test_visible_lines_respects_fov_and_range():
     assert visible_lines(model, far, max_range=2.0).tolist() == [True, False]
 
 
+def test_visibility_shortcuts_give_the_full_tests_mask():
+    """line_geometry(...).visible_from skips the range and field-of-view tests when a
+    circle around the lines lies inside them: the mask is that of every test, also for
+    lidars whose range or field of view ends on the lines (each test then drops some)."""
+    rng = np.random.default_rng(7)
+    skipped = cut = 0
+    for trial in range(4000):
+        k = int(rng.integers(2, 7))
+        mean = rng.uniform(-20.0, 20.0, 2) + rng.normal(0.0, rng.uniform(0.1, 5.0), (k, 2))
+        closed = trial % 2 == 0
+        u = np.zeros(k if closed else k - 1)
+        geometry = line_geometry(LandmarkModel(mean, np.eye(2 * k) * 1e-4, u, closed=closed))
+        lo, hi = mean.min(axis=0), mean.max(axis=0)
+        centre, radius = 0.5 * (lo + hi), 0.5 * np.hypot(*(hi - lo))
+        bearing = rng.uniform(-np.pi, np.pi)
+        distance = radius + rng.uniform(0.01, 15.0)
+        px, py = centre - distance * np.array([np.cos(bearing), np.sin(bearing)])
+        max_range = float(rng.uniform(distance - radius, distance + 1.1 * radius))
+        half_fov = float(rng.choice([np.pi / 2, 1.0, np.pi]))
+        spread = half_fov + np.arcsin(radius / distance)  # beyond it no line is in view
+        theta = bearing + float(rng.uniform(-spread, spread))
+        full = icp._visible(
+            geometry.ax,
+            geometry.ay,
+            geometry.abx,
+            geometry.aby,
+            geometry.inv_length2,
+            px,
+            py,
+            theta,
+            max_range,
+            half_fov,
+        )
+        fast = geometry.visible_from(px, py, theta, max_range, half_fov)
+        assert fast.tolist() == full.tolist(), trial
+        facing = icp._visible(
+            geometry.ax,
+            geometry.ay,
+            geometry.abx,
+            geometry.aby,
+            geometry.inv_length2,
+            px,
+            py,
+            theta,
+            None,
+            None,
+        )
+        skipped += distance + radius <= max_range * (1.0 - 1e-9)
+        cut += int(np.count_nonzero(facing & ~full) > 0)
+    assert skipped > 100 and cut > 100  # the shortcut was taken, the tests dropped lines
+
+
 @pytest.mark.parametrize(
     "points, pose",
     [

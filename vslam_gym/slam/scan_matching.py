@@ -378,6 +378,13 @@ class Reference(NamedTuple):
     table: np.ndarray  # (N + 1, 4)
 
 
+_BALANCED_TREE = False
+"""``cKDTree(balanced_tree=...)`` of a reference. Sliding-midpoint splits (False) build
+a 4 000-point map of wall points in 0.30 ms instead of 0.52 ms (median splits), and
+queries take as long (scipy 1.17); nearest neighbours are exact either way. The Intel
+log builds 1.5 references per scan."""
+
+
 def _transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
     c, s = np.cos(pose[2]), np.sin(pose[2])
     return points @ np.array([[c, s], [-s, c]]) + pose[:2]
@@ -489,7 +496,8 @@ class LocalMap:
             nrm = np.concatenate([self._normals[i] for i in selection])
             table = np.zeros((pts.shape[0] + 1, 4))
             table[:-1, :2], table[:-1, 2:] = pts, nrm
-            self._reference = Reference(cKDTree(pts), pts, nrm, table)
+            tree = cKDTree(pts, balanced_tree=_BALANCED_TREE)
+            self._reference = Reference(tree, pts, nrm, table)
             self._selection = selection
         return self._reference
 
