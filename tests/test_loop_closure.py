@@ -201,6 +201,12 @@ def test_right_after_a_fused_match_tracking_starts_from_the_predicted_heading_on
     plain, _ = _closure()
     plain.fused(100)
     assert plain.match(scan_at(true, rng), true, GATE_COV, now=101).match.hypotheses > 1
+    # with a cooldown: the first match tried after it
+    cooling, _ = _closure(track_hypotheses=1, cooldown=3)
+    cooling.fused(100)
+    assert cooling.match(scan_at(true, rng), true, GATE_COV, now=102) is None
+    assert cooling.match(scan_at(true, rng), true, GATE_COV, now=103).match.hypotheses == 1
+    assert cooling.match(scan_at(true, rng), true, GATE_COV, now=104).match.hypotheses > 1
 
 
 def _drive(loop_closure: bool, steps: int = 150, **options):
@@ -261,6 +267,7 @@ def test_tracking_after_fused_matches_still_closes_the_loop_in_the_filter(monkey
     assert np.linalg.eigvalsh(slam._sigma).min() > 0
     assert SlamConfig.logs().filter.loop_track_hypotheses == 1
     assert SlamConfig().filter.loop_track_hypotheses == 0
+    assert SlamConfig.logs().filter.loop_cooldown == 2 and SlamConfig().filter.loop_cooldown == 0
 
 
 def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():

@@ -282,8 +282,8 @@ def test_the_reference_table_is_points_normals_and_a_zero_sentinel():
     ref = local.reference()
     n = ref.points.shape[0]
     assert ref.table.shape == (n + 1, 4)
-    assert np.array_equal(ref.table[:n, :2], ref.points)
-    assert np.array_equal(ref.table[:n, 2:], ref.normals)
+    assert np.array_equal(ref.table[:n, :2], ref.normals)
+    assert np.array_equal(ref.table[:n, 2:], ref.points)
     assert not ref.table[n].any()
     assert ref.tree.n == n
 

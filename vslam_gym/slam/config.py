@@ -690,11 +690,13 @@ class FilterConfig:
             version, correspondences from 1 m; 456 with the default); (0.05, 0.05,
             0.01) measured 134 there with the first version, but ``house`` seeds 0-9
             final error 0.182 m instead of 0.050 m: 0 by default.
-        loop_cooldown: measurement updates after a fused revisit match before the next
-            match is tried; 0 tries every one; >= 0. 10 measured NEES 198 on the random
-            worlds and ``house`` final error 0.199 m: 0 by default.
+        loop_cooldown: after a fused revisit match the next is tried this many
+            measurement updates later at the earliest (2: the next update tries none);
+            0 and 1 try every one; >= 0. 10 measured NEES 198 on the random worlds and
+            ``house`` final error 0.199 m: 0 by default; 2 in the ``logs`` preset.
         loop_track_hypotheses: right after a fused revisit match (the previous
-            measurement update's), the next revisit match starts from at most this many
+            measurement update's, or with ``loop_cooldown`` the last before the
+            cooldown), the next revisit match starts from at most this many
             heading hypotheses (1: the predicted heading only) instead of the spread
             over the pose's heading uncertainty: the belief already agrees with the
             earlier visit (speed: on the Intel log a match is fused on most updates);

@@ -162,9 +162,10 @@ class SlamConfig:
         (``loop_strong_max_mahalanobis``: ACES logged odometry 1.30 -> 1.04 m); right
         after a fused revisit match the next starts from the predicted heading only
         (``loop_track_hypotheses=1``: 4-5 % less time per scan on Intel, accuracy
-        level); an ICP alignment that alternates stops at its first return
-        (``IcpConfig.cycle_returns=1``: the same results up to the tolerances, 3-8 % less
-        time per scan). Figures in docs/radish.md.
+        level), and the update after a fused match tries none (``loop_cooldown=2``:
+        2-5 % less time per scan, accuracy level); an ICP alignment that alternates
+        stops at its first return (``IcpConfig.cycle_returns=1``: the same results up to
+        the tolerances, 3-8 % less time per scan). Figures in docs/radish.md.
 
         The matcher's revisits (older keyframes within 3 m of the prediction, an
         implicit loop closure in the matcher's own frame) were in this preset before the
@@ -209,6 +210,14 @@ class SlamConfig:
                 # Intel 0.478 -> 0.479 m, ACES 1.237 -> 1.244 m; logged over five
                 # round-off samples Intel 0.672 -> 0.670-0.673 m, ACES 0.966 -> 0.963 m).
                 loop_track_hypotheses=1,
+                # After a fused revisit match the next measurement update tries none
+                # (the tracking above then applies to the one after it): Intel fuses a
+                # match on most updates. Measured (2026-11-26, docs/radish.md "Speed,
+                # second round"; 0 -> 2, two round-off samples): synthetic seeds 0-19
+                # Intel 0.480 / 0.480 -> 0.481 / 0.483 m, ACES 1.298 / 1.251 -> 1.290 /
+                # 1.251 m; logged (five samples) Intel 0.670-0.673 -> 0.674-0.676 m,
+                # ACES 0.951-0.963 -> 0.936-0.953 m; 2-5 % less time per scan.
+                loop_cooldown=2,
             ),
             # No freeze_on_cycle: measured no better here (full logs, seeds 0-4, position
             # ATE mean: Intel 0.61 -> 0.59 m, ACES 1.36 -> 1.44 m; step time unchanged).

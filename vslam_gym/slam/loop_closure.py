@@ -207,9 +207,10 @@ class LoopClosure:
             their overconfident covariance).
         cooldown: after a fused match (:meth:`fused`), this many measurement updates
             pass before the next match is tried; 0: every one.
-        track_hypotheses: right after a fused match (the previous measurement
-            update's), at most this many heading hypotheses (1: the predicted heading
-            only); 0: always the spread over ``gate_cov``'s heading variance.
+        track_hypotheses: in the first match tried after a fused one (the next
+            measurement update's, or the first after the cooldown), at most this many
+            heading hypotheses (1: the predicted heading only); 0: always the spread
+            over ``gate_cov``'s heading variance.
         max_distance_start: the matcher's first correspondence distance [m] for the
             revisit match (None: ``matcher``'s): a drift beyond it is not pulled in ...
         max_distance_mid: ... and its distance [m] at the end of the coarse phase.
@@ -280,7 +281,7 @@ class LoopClosure:
         if self._last_fused is not None and now - self._last_fused < self.cooldown:
             return None
         config = self.keyframes.config
-        if self._tracking is not None and self._last_fused == now - 1:
+        if self._tracking is not None and self._last_fused == now - max(self.cooldown, 1):
             config = self._tracking  # the belief agrees with the earlier visit already
         try:
             result = match_scan(points, self.keyframes, pose, gate_cov, config, use_prior=False)

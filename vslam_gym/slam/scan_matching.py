@@ -367,9 +367,9 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> tuple[np.ndar
 class Reference(NamedTuple):
     """A local map's reference: the selected keyframes' points and normals.
 
-    ``table`` is ``(N + 1, 4)``: each point's ``[x, y, n_x, n_y]`` and a last all-zero
-    row, the sentinel a k-d tree query returns (index ``N``) when no point lies within
-    its distance bound; one gather then gives point and normal.
+    ``table`` is ``(N + 1, 4)``: each point's normal and position ``[n_x, n_y, x, y]``
+    and a last all-zero row, the sentinel a k-d tree query returns (index ``N``) when no
+    point lies within its distance bound; one gather then gives normal and point.
     """
 
     tree: cKDTree
@@ -495,7 +495,7 @@ class LocalMap:
             pts = np.concatenate([self._points[i] for i in selection])
             nrm = np.concatenate([self._normals[i] for i in selection])
             table = np.zeros((pts.shape[0] + 1, 4))
-            table[:-1, :2], table[:-1, 2:] = pts, nrm
+            table[:-1, :2], table[:-1, 2:] = nrm, pts
             tree = cKDTree(pts, balanced_tree=_BALANCED_TREE)
             self._reference = Reference(tree, pts, nrm, table)
             self._selection = selection
@@ -574,12 +574,13 @@ def _residuals(
     np.add(ry, poses[:, 1, None], out=wy)
     _, idx = reference.tree.query(world.reshape(-1, 2), distance_upper_bound=gate)
     idx = idx.reshape(rx.shape)
-    q = reference.table[idx]  # (h, n, 4): point and normal, the sentinel when unmatched
-    nx, ny = q[..., 2], q[..., 3]
-    system = np.empty((*rx.shape, 4))
-    system[..., :2] = q[..., 2:]
+    # (h, n, 4): normal and point, the sentinel when unmatched; it becomes the system:
+    # the normal stays (d r / d [x, y]), the point is overwritten once r is computed.
+    system = reference.table[idx]
+    nx, ny = system[..., 0], system[..., 1]
+    r = nx * (wx - system[..., 2]) + ny * (wy - system[..., 3])
     np.subtract(ny * rx, nx * ry, out=system[..., 2])
-    system[..., 3] = nx * (wx - q[..., 0]) + ny * (wy - q[..., 1])
+    system[..., 3] = r
     return _Residuals(system, idx < reference.points.shape[0])
 
 
