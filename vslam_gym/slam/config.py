@@ -694,13 +694,12 @@ class FilterConfig:
             measurement updates later at the earliest (2: the next update tries none);
             0 and 1 try every one; >= 0. 10 measured NEES 198 on the random worlds and
             ``house`` final error 0.199 m: 0 by default; 2 in the ``logs`` preset.
-        loop_track_hypotheses: right after a fused revisit match (the previous
-            measurement update's, or with ``loop_cooldown`` the last before the
-            cooldown), the next revisit match starts from at most this many
-            heading hypotheses (1: the predicted heading only) instead of the spread
-            over the pose's heading uncertainty: the belief already agrees with the
-            earlier visit (speed: on the Intel log a match is fused on most updates);
-            0: off; >= 0.
+        loop_track_hypotheses: the first revisit match tried after a fused one (the
+            next measurement update's; with ``loop_cooldown`` >= 2 the first after the
+            cooldown) starts from at most this many heading hypotheses (1: the
+            predicted heading only) instead of the spread over the pose's heading
+            uncertainty: the belief already agrees with the earlier visit (speed: on
+            the Intel log a match is fused on most updates); 0: off; >= 0.
         loop_min_innovation: a revisit match is fused only when it lies at least this
             far (Mahalanobis distance, pose covariance plus the match's) from the
             predicted pose: one that agrees with the belief closes nothing and would

@@ -225,7 +225,8 @@ class SlamConfig:
             # first return and reports the state it would have had at max_iterations
             # (389 of the 5 185 alignments of the Intel logged run ran to the limit, 44 %
             # of the ICP iterations). The same results up to the tolerances; measured
-            # (2026-11-26, docs/radish.md "Speed"): 3-8 % less time per scan, ATE level.
+            # (2026-11-26, docs/radish.md "Speed, second round"): 3-8 % less time per
+            # scan, ATE level.
             icp=IcpConfig(point_to_line=True, cycle_returns=1),
             matcher=ScanMatcherConfig(on_ambiguity="prior"),
         )

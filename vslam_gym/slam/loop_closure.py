@@ -205,8 +205,9 @@ class LoopClosure:
         sigma_floor: standard deviations ``(x [m], y [m], theta [rad])`` added in
             quadrature to the measurement's noise (the keyframes' pose errors beyond
             their overconfident covariance).
-        cooldown: after a fused match (:meth:`fused`), this many measurement updates
-            pass before the next match is tried; 0: every one.
+        cooldown: after a fused match (:meth:`fused`) the next is tried this many
+            measurement updates later at the earliest (2: the next update tries none);
+            0 and 1: every update.
         track_hypotheses: in the first match tried after a fused one (the next
             measurement update's, or the first after the cooldown), at most this many
             heading hypotheses (1: the predicted heading only); 0: always the spread
