@@ -119,6 +119,9 @@ def test_config_from_dict_and_presets():
     assert fast.model == SlamConfig().model and fast.icp == SlamConfig().icp
     # the logs preset stops alternating ICP alignments at their first return
     assert SlamConfig.logs().icp.cycle_returns == 1 and SlamConfig().icp.cycle_returns == 0
+    # ... and stops per-landmark alignments that leave ten times the gate
+    assert SlamConfig.logs().filter.icp_stop_beyond_gate == 10.0
+    assert SlamConfig().filter.icp_stop_beyond_gate == 0.0
     for name in ("default", "thesis", "logs"):  # every scan is measured
         assert SlamConfig.preset(name).filter.measurement_min_travel == 0.0
     # update verification: on by default, off in the other presets (measured no better)

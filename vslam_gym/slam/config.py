@@ -554,7 +554,9 @@ class FilterConfig:
             m and ``small`` ATE 0.129 -> 0.163 m. Again at 3 with the side-by-side ICP
             (2026-11-26): ``house`` median step 17.5 -> 14.9 ms, ``small`` ATE 0.098
             -> 0.148 m (its round-off spread is 0.096-0.098 m), ``house`` 20-seed ATE
-            0.262 / 0.293 m in two samples (default 0.21-0.28 m).
+            0.262 / 0.293 m in two samples (default 0.21-0.28 m). 10 in the ``logs``
+            preset (Radish logs: accuracy level, 6-9 % less time per scan; 3 was
+            worse on ACES).
         measurement_min_travel: a motion filter: the landmark measurement update (step 3
             on) runs only once the pose mean has moved at least this far [m] ...
         measurement_min_turn: ... or turned at least this much [rad] since the last

@@ -163,9 +163,11 @@ class SlamConfig:
         after a fused revisit match the next starts from the predicted heading only
         (``loop_track_hypotheses=1``: 4-5 % less time per scan on Intel, accuracy
         level), and the update after a fused match tries none (``loop_cooldown=2``:
-        2-5 % less time per scan, accuracy level); an ICP alignment that alternates
-        stops at its first return (``IcpConfig.cycle_returns=1``: the same results up to
-        the tolerances, 3-8 % less time per scan). Figures in docs/radish.md.
+        2-5 % less time per scan, accuracy level); a per-landmark ICP stops once it
+        leaves ten times the gate (``icp_stop_beyond_gate=10``: 6-9 % less time per
+        scan, accuracy level) and one that alternates stops at its first return
+        (``IcpConfig.cycle_returns=1``: the same results up to the tolerances, 3-8 % less
+        time per scan). Figures in docs/radish.md.
 
         The matcher's revisits (older keyframes within 3 m of the prediction, an
         implicit loop closure in the matcher's own frame) were in this preset before the
@@ -218,6 +220,16 @@ class SlamConfig:
                 # 1.251 m; logged (five samples) Intel 0.670-0.673 -> 0.674-0.676 m,
                 # ACES 0.951-0.963 -> 0.936-0.953 m; 2-5 % less time per scan.
                 loop_cooldown=2,
+                # A per-landmark ICP stops once its pose leaves 10 times the gate (30
+                # Mahalanobis units): on the Intel log 30 % of the alignments wander
+                # off, up to metres, until they lose their points, and those that go
+                # that far do not come back into the gate. Measured (2026-11-26,
+                # docs/radish.md "Speed, second round"; 0 -> 10, two round-off samples):
+                # synthetic seeds 0-19 Intel 0.481 / 0.483 -> 0.483 / 0.485 m, ACES
+                # 1.290 / 1.251 -> 1.281 / 1.252 m; logged (five samples) Intel
+                # 0.674-0.676 -> 0.680 m, ACES 0.936-0.953 -> 0.952-0.953 m; 6-9 % less
+                # time per scan. 3 (9 units) lost ACES: seeds 0-19 1.50 m, logged 1.04 m.
+                icp_stop_beyond_gate=10.0,
             ),
             # No freeze_on_cycle: measured no better here (full logs, seeds 0-4, position
             # ATE mean: Intel 0.61 -> 0.59 m, ACES 1.36 -> 1.44 m; step time unchanged).
