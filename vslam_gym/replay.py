@@ -265,7 +265,14 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
         help="seed(s) of the synthetic odometry: one seed 3, a range 0-4 or a list 0,3,5 "
         "(several: each run in OUT/seedS/, and their summary in OUT/metrics.json)",
     )
-    parser.add_argument("--preset", choices=("default", "thesis", "logs"), default="default")
+    parser.add_argument(
+        "--preset",
+        choices=("default", "thesis", "logs"),
+        default="default",
+        help="configuration preset (default %(default)s); 'logs' is the one measured on "
+        "real lidar logs: whole-scan prealignment, loop closure, README 'Replaying a "
+        "Carmen log'",
+    )
     parser.add_argument(
         "--prealign",
         choices=PREALIGN_MODES,
