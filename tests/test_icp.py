@@ -378,32 +378,11 @@ def test_visibility_shortcuts_give_the_full_tests_mask():
         half_fov = float(rng.choice([np.pi / 2, 1.0, np.pi]))
         spread = half_fov + np.arcsin(radius / distance)  # beyond it no line is in view
         theta = bearing + float(rng.uniform(-spread, spread))
-        full = icp._visible(
-            geometry.ax,
-            geometry.ay,
-            geometry.abx,
-            geometry.aby,
-            geometry.inv_length2,
-            px,
-            py,
-            theta,
-            max_range,
-            half_fov,
-        )
+        lines = (geometry.ax, geometry.ay, geometry.abx, geometry.aby, geometry.inv_length2)
+        full = icp._visible(*lines, px, py, theta, max_range, half_fov)  # every test
         fast = geometry.visible_from(px, py, theta, max_range, half_fov)
         assert fast.tolist() == full.tolist(), trial
-        facing = icp._visible(
-            geometry.ax,
-            geometry.ay,
-            geometry.abx,
-            geometry.aby,
-            geometry.inv_length2,
-            px,
-            py,
-            theta,
-            None,
-            None,
-        )
+        facing = icp._visible(*lines, px, py, theta, None, None)
         skipped += distance + radius <= max_range * (1.0 - 1e-9)
         cut += int(np.count_nonzero(facing & ~full) > 0)
     assert skipped > 100 and cut > 100  # the shortcut was taken, the tests dropped lines

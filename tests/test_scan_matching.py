@@ -277,15 +277,15 @@ def test_refinement_keeps_the_rivals_of_an_ambiguous_match():
     assert match_scan(pts, local, np.zeros(3), _cov(0.05, 30.0), config=config) is None
 
 
-def test_the_reference_table_is_points_normals_and_a_zero_sentinel():
+def test_the_reference_table_is_normals_points_and_a_zero_sentinel():
     local = _map(np.array([2.0, 2.0, 0.3]), L_ROOM)
     ref = local.reference()
-    n = ref.points.shape[0]
-    assert ref.table.shape == (n + 1, 4)
-    assert np.array_equal(ref.table[:n, :2], ref.normals)
-    assert np.array_equal(ref.table[:n, 2:], ref.points)
+    n = ref.tree.n
+    assert n > 50 and ref.table.shape == (n + 1, 4)
+    assert np.array_equal(ref.table[:n, 2:], ref.tree.data)  # the tree's points
+    np.testing.assert_allclose(np.hypot(*ref.table[:n, :2].T), 1.0)  # unit normals
+    assert np.array_equal(ref.points, ref.tree.data) and ref.normals.shape == (n, 2)
     assert not ref.table[n].any()
-    assert ref.tree.n == n
 
 
 @pytest.mark.parametrize(

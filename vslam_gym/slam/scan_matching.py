@@ -368,14 +368,23 @@ class Reference(NamedTuple):
     """A local map's reference: the selected keyframes' points and normals.
 
     ``table`` is ``(N + 1, 4)``: each point's normal and position ``[n_x, n_y, x, y]``
-    and a last all-zero row, the sentinel a k-d tree query returns (index ``N``) when no
-    point lies within its distance bound; one gather then gives normal and point.
+    and a last all-zero row, the sentinel a k-d tree query returns (index ``N``, the
+    tree's ``n``) when no point lies within its distance bound; one gather then gives
+    normal and point.
     """
 
-    tree: cKDTree
-    points: np.ndarray  # (N, 2) map frame [m]
-    normals: np.ndarray  # (N, 2) unit normals, map frame
+    tree: cKDTree  # over the points
     table: np.ndarray  # (N + 1, 4)
+
+    @property
+    def points(self) -> np.ndarray:
+        """``(N, 2)`` the points, map frame [m] (a view of the table)."""
+        return self.table[:-1, 2:]
+
+    @property
+    def normals(self) -> np.ndarray:
+        """``(N, 2)`` their unit normals, map frame (a view of the table)."""
+        return self.table[:-1, :2]
 
 
 _BALANCED_TREE = False
@@ -496,8 +505,7 @@ class LocalMap:
             nrm = np.concatenate([self._normals[i] for i in selection])
             table = np.zeros((pts.shape[0] + 1, 4))
             table[:-1, :2], table[:-1, 2:] = nrm, pts
-            tree = cKDTree(pts, balanced_tree=_BALANCED_TREE)
-            self._reference = Reference(tree, pts, nrm, table)
+            self._reference = Reference(cKDTree(pts, balanced_tree=_BALANCED_TREE), table)
             self._selection = selection
         return self._reference
 
@@ -552,6 +560,10 @@ class _Residuals:
         """``(h, n, 3)`` their derivatives by ``[x, y, theta]`` (0 when unmatched)."""
         return self.system[..., :3]
 
+    def inliers(self, distance: float) -> np.ndarray:
+        """``(h, n)`` bool: matched and within ``distance`` [m] of the neighbour's line."""
+        return self.matched & (np.abs(self.r) <= distance)
+
     def take(self, rows: np.ndarray) -> _Residuals:
         """The residuals of the poses ``rows`` only."""
         return _Residuals(self.system[rows], self.matched[rows])
@@ -581,7 +593,7 @@ def _residuals(
     r = nx * (wx - system[..., 2]) + ny * (wy - system[..., 3])
     np.subtract(ny * rx, nx * ry, out=system[..., 2])
     system[..., 3] = r
-    return _Residuals(system, idx < reference.points.shape[0])
+    return _Residuals(system, idx < reference.tree.n)
 
 
 def _normal_equations(res: _Residuals, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -659,7 +671,7 @@ def _damped_step(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
 
 def _kept(res: _Residuals, keep: int | None, ratio: float, config: ScanMatcherConfig) -> np.ndarray:
     """Indices (ascending) of the poses :func:`_gauss_newton` keeps (``keep_after``)."""
-    inliers = (res.matched & (np.abs(res.r) <= config.inlier_distance)).sum(axis=1)
+    inliers = res.inliers(config.inlier_distance).sum(axis=1)
     order = np.argsort(-inliers, kind="stable")[:keep]
     order = order[inliers[order] >= ratio * inliers[order[0]]]
     return np.sort(order)
@@ -674,8 +686,7 @@ def _inliers(
 ) -> tuple[_Residuals, np.ndarray]:
     """Residuals at ``poses`` and each pose's inlier fraction ``(h,)``."""
     res = _residuals(poses, points, reference, gate)
-    inlier = res.matched & (np.abs(res.r) <= config.inlier_distance)
-    return res, inlier.sum(axis=1) / points.shape[0]
+    return res, res.inliers(config.inlier_distance).sum(axis=1) / points.shape[0]
 
 
 def _merge(poses: np.ndarray, config: ScanMatcherConfig) -> np.ndarray:
