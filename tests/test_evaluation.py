@@ -12,6 +12,7 @@ from vslam_gym.evaluation import (
     SeedsError,
     add_evaluate_parser,
     association_precision,
+    compound_precision,
     check_range_perturbation,
     chi2_interval,
     cmd_evaluate,
@@ -33,6 +34,7 @@ from vslam_gym.evaluation import (
     position_ate_rmse,
     run_episode,
     sem_metrics,
+    set_obstacles,
     write_tum,
     yaw_quaternion,
 )
@@ -200,6 +202,43 @@ def test_association_precision_without_associations_is_nan():
     assert math.isnan(precision)
 
 
+def test_set_obstacles_keeps_the_ids_of_a_tenth_of_the_hits_most_hit_first():
+    # 20 hitting beams: 12 on obstacle 3, 6 on 1, 2 on 7 (a tenth: kept), 0 on others
+    hits = [3] * 12 + [-1] * 5 + [1] * 6 + [7] * 2
+    assert set_obstacles(hits) == (3, 1, 7)
+    assert set_obstacles(hits + [9]) == (3, 1)  # 2 and 1 of 21 hits: below a tenth
+    assert set_obstacles([5, 4, 5, 4]) == (4, 5)  # ties: the smaller id first
+    assert set_obstacles([-1, -1]) == ()
+    assert set_obstacles(hits, share=0.5) == (3,)
+
+
+def test_compound_precision_accepts_the_obstacles_the_landmark_was_created_from():
+    d = DecisionRecord
+    log = [
+        d(1, 0, 9, "created", 0, 1, (1, 2)),  # landmark 0: a corner of obstacles 1 and 2
+        d(1, 20, 29, "created", 1, 3, (3,)),
+        d(2, 0, 9, "updated", 0, 1, (1,)),  # correct either way
+        d(2, 20, 29, "updated", 0, 2, (2,)),  # obstacle 2: on the corner's other wall
+        d(3, 0, 9, "updated", 1, 4, (4, 3)),  # obstacle 4 was not in landmark 1's set
+        d(4, 0, 9, "associated", 1, 4, (4,)),  # a wrong update does not make 4 a member
+        d(5, 0, 9, "associated", 1, -1, ()),  # no return: never correct
+    ]
+    ids = landmark_majority_ids(log)
+    assert ids == {0: 1, 1: 3}  # votes: landmark 1 gets 3 and 4 once each, tie to 3
+    strict, n = association_precision(log, ids)
+    assert (strict, n) == (pytest.approx(1 / 5), 5)
+    compound, n = compound_precision(log, ids)
+    assert (compound, n) == (pytest.approx(2 / 5), 5)
+    # without recorded obstacles it is the strict metric
+    bare = [
+        DecisionRecord(r.step, r.first, r.last, r.outcome, r.landmark, r.majority_id) for r in log
+    ]
+    assert compound_precision(bare, ids) == association_precision(bare, ids)
+    assert compound_precision(_decision_log(), landmark_majority_ids(_decision_log()))[0] == (
+        pytest.approx(3 / 5)
+    )
+
+
 def test_duplicate_fraction():
     assert duplicate_fraction(landmark_majority_ids(_decision_log())) == pytest.approx(1 - 2 / 3)
     assert duplicate_fraction([0, 1, 2, 3]) == 0.0
@@ -345,6 +384,7 @@ def test_episode_log_is_consistent(episode):
     assert not episode.route_done
     # the only obstacle is id 0: every set is on it
     assert {d.majority_id for d in episode.decisions} == {0}
+    assert {d.obstacles for d in episode.decisions} == {(0,)}
     assert {d.step for d in episode.decisions} <= set(range(1, E2E_STEPS + 1))
     timing = episode_metrics(episode)
     assert timing["step_ms_mean"] == pytest.approx(np.mean(episode.step_ms))
@@ -384,6 +424,8 @@ def test_evaluate_end_to_end_is_deterministic(episode, tmp_path, capsys):
     assert 0.0 < seed["odom_ate_rmse_m"] < 0.5
     assert 0.0 <= seed["nees_in_band_fraction"] <= 1.0
     assert 0.0 <= seed["duplicate_fraction"] < 1.0
+    assert seed["association_precision"] <= seed["compound_precision"] <= 1.0
+    assert "cmp P" in printed
     assert seed["step_ms_median"] <= seed["step_ms_p95"]
     for key in REQUIRED_KEYS - {"world", "preset"}:
         assert metrics["mean"][key] == pytest.approx(seed[key]), key  # one seed
