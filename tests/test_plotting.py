@@ -16,6 +16,7 @@ from vslam_gym.slam.config import SensorConfig
 from vslam_gym.slam.creation import create_model
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.plotting import (
+    PlotStyle,
     covariance_ellipse,
     plot_model,
     plot_models,
@@ -157,6 +158,20 @@ def test_plot_model_ellipses_match_vertex_covariances(zigzag):
         assert (e.width, e.height, e.angle) == pytest.approx((width, height, angle))
         # 2-sigma along the major axis is twice the largest vertex standard deviation.
         assert e.width == pytest.approx(4.0 * np.sqrt(np.linalg.eigvalsh(model.vertex_cov(i))[-1]))
+
+
+def test_plot_model_can_leave_out_unknown_vertex_ellipses_and_fade_unknown_lines(zigzag):
+    _, fit = zigzag
+    model = fit.model
+    style = PlotStyle(unknown_alpha=0.25, unknown_ellipses=False)
+    ax = plot_model(model, n_sigma=2.0, style=style)
+    start, stop = fit.object_vertices  # the object lines join vertices start..stop-1
+    ellipses = [p for p in ax.patches if isinstance(p, Ellipse)]
+    assert len(ellipses) == stop - start == 5 < model.n_vertices
+    np.testing.assert_allclose([e.center for e in ellipses], model.mean[start:stop])
+    solid, dashed, _ = lines_by_style(ax)
+    assert {ln.get_alpha() for ln in dashed} == {0.25}
+    assert {ln.get_alpha() for ln in solid} == {1.0}
 
 
 def test_plot_model_threshold_and_label(zigzag):

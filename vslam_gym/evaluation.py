@@ -106,6 +106,10 @@ ELLIPSE_EVERY = 20
 MAP_MARGIN = 1.5
 """Margin [m] around the true obstacles and path in the map figure (unknown lines that
 run to the maximum range are clipped)."""
+MAP_LABELS_AT_MOST = 40
+"""The map figure labels each landmark (``L<id>:o<obstacle>``) only up to this many."""
+MAP_UNKNOWN_ALPHA = 0.3
+"""Opacity of the unknown lines in the map figure (object lines are opaque)."""
 DEFAULT_STEP_LIMIT = 5000
 """Step budget of an episode when ``max_steps`` is not given (a robot that cannot finish
 its route, e.g. stuck on an obstacle, must not run forever): 500 s of simulated time at
@@ -925,21 +929,29 @@ def plot_trajectories(log: EpisodeLog, path: str | os.PathLike[str]) -> None:
 
 
 def plot_map(log: EpisodeLog, path: str | os.PathLike[str]) -> None:
-    """Save the final landmark map (3-sigma vertex ellipses) over the true obstacles."""
-    from vslam_gym.slam.plotting import plot_models
+    """Save the final landmark map over the true obstacles.
+
+    Object lines solid, unknown lines dashed and faint, the 3-sigma ellipses of the
+    object vertices (an unknown line's far end, at a ray's maximum range, has an ellipse
+    metres long and is left out); each landmark labelled ``L<id>:o<majority obstacle>``
+    when there are at most :data:`MAP_LABELS_AT_MOST`.
+    """
+    from vslam_gym.slam.plotting import PlotStyle, plot_models
 
     fig, ax = _new_figure((9, 7))
     _draw_obstacles(ax, log.world, facecolor="0.9", edgecolor="0.7", linewidth=0.5)
     landmarks = log.final_belief.landmarks
+    labelled = len(landmarks) <= MAP_LABELS_AT_MOST
     if landmarks:
         plot_models(
             [lm.model for lm in landmarks],
             ax,
             n_sigma=ELLIPSE_N_SIGMA,
             unknown_threshold=log.config.model.unknown_threshold,
+            style=PlotStyle(unknown_alpha=MAP_UNKNOWN_ALPHA, unknown_ellipses=False),
         )
         ids = landmark_majority_ids(log.decisions)
-        for lm in landmarks:
+        for lm in landmarks if labelled else ():
             ax.annotate(
                 f"L{lm.id}:o{ids.get(lm.id, NO_HIT)}",
                 tuple(lm.reference),
@@ -953,9 +965,10 @@ def plot_map(log: EpisodeLog, path: str | os.PathLike[str]) -> None:
     ax.set_ylim(low[1] - MAP_MARGIN, high[1] + MAP_MARGIN)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
+    key = " (L<landmark>:o<majority obstacle>)" if labelled and landmarks else ""
     ax.set_title(
-        f"{log.world_name}, seed {log.seed}: {len(landmarks)} landmarks "
-        f"(L<landmark>:o<majority obstacle>), {len(log.world.obstacles)} obstacles"
+        f"{log.world_name}, seed {log.seed}: {len(landmarks)} landmarks{key}, "
+        f"{len(log.world.obstacles)} obstacles"
     )
     ax.legend(loc="best", fontsize="small")
     fig.savefig(path)

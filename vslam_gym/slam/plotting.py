@@ -50,6 +50,10 @@ class PlotStyle:
         vertex_marker_size: its size [points].
         ellipse_line_width: edge width of the vertex ellipses [points].
         ellipse_alpha: opacity of the vertex ellipses, in [0, 1].
+        unknown_alpha: opacity of unknown lines, in [0, 1].
+        unknown_ellipses: draw the ellipses of vertices on no object line too (an
+            unknown line's far end is a ray's maximum range, with an ellipse metres
+            long); False draws only the object vertices' ellipses.
         measurement_marker: marker of the scan's world-frame points.
         measurement_marker_size: its size [points].
         measurement_color: colour of the scan's points.
@@ -63,6 +67,8 @@ class PlotStyle:
     vertex_marker_size: float = 3.0
     ellipse_line_width: float = 0.8
     ellipse_alpha: float = 0.8
+    unknown_alpha: float = 1.0
+    unknown_ellipses: bool = True
     measurement_marker: str = "."
     measurement_marker_size: float = 3.0
     measurement_color: str = "k"
@@ -168,7 +174,8 @@ def plot_model(
 
     Draws one ``Line2D`` per model line (solid for object lines,
     ``u <= unknown_threshold``; dashed for unknown lines), one ``Line2D`` of vertex
-    markers and one ``Ellipse`` patch per vertex (its ``n_sigma`` contour). With
+    markers and one ``Ellipse`` patch per vertex (its ``n_sigma`` contour; with
+    ``style.unknown_ellipses`` False only per vertex of an object line). With
     ``scan`` and ``pose`` the scan's returns are drawn as world-frame points (one
     ``Line2D``); with ``pose`` the lidar pose is drawn as a triangle (a ``Polygon``
     patch) pointing along the heading. The axes get an equal aspect ratio.
@@ -206,9 +213,15 @@ def plot_model(
         raise ValueError("drawing a scan needs the lidar pose it was taken from (pose=...)")
     points = scan_points(scan, pose) if scan is not None else None
     pose_arr = check_pose(pose) if pose is not None else None
+    unknown = model.is_unknown(unknown_threshold)
+    ends = model.line_vertices()
+    drawn = np.ones(model.n_vertices, dtype=bool)
+    if not style.unknown_ellipses:
+        drawn[:] = False
+        drawn[ends[~unknown].ravel()] = True
     ellipses = [
-        covariance_ellipse(model.mean[i], model.vertex_cov(i), n_sigma)
-        for i in range(model.n_vertices)
+        (model.mean[i], covariance_ellipse(model.mean[i], model.vertex_cov(i), n_sigma))
+        for i in np.flatnonzero(drawn)
     ]
     if ax is None:
         import matplotlib.pyplot as plt
@@ -216,9 +229,8 @@ def plot_model(
         ax = plt.gca()
     color = "C0" if color is None else color
 
-    unknown = model.is_unknown(unknown_threshold)
     label_line = int(np.argmin(unknown)) if model.n_lines else -1
-    for j, (a, b) in enumerate(model.line_vertices()):
+    for j, (a, b) in enumerate(ends):
         xy = model.mean[[a, b]]
         ax.plot(
             xy[:, 0],
@@ -226,6 +238,7 @@ def plot_model(
             linestyle=style.unknown_linestyle if unknown[j] else "-",
             linewidth=style.line_width,
             color=color,
+            alpha=style.unknown_alpha if unknown[j] else 1.0,
             label=label if j == label_line else None,
         )
     ax.plot(
@@ -236,7 +249,7 @@ def plot_model(
         markersize=style.vertex_marker_size,
         color=color,
     )
-    for centre, (width, height, angle) in zip(model.mean, ellipses, strict=True):
+    for centre, (width, height, angle) in ellipses:
         ax.add_patch(
             Ellipse(
                 tuple(centre),
