@@ -324,6 +324,42 @@ def _belief_with_line(start, end, pose, u=0.0, ref_cov=None) -> Belief:
     return Belief(0, pose, np.eye(3) * 1e-4, pose, (view,), (), 5, 0.0)
 
 
+def test_belief_segments_of_open_closed_and_line_less_landmarks():
+    # an open chain of 3 vertices, a landmark without lines, a closed triangle
+    open_cov = np.diag([0.01, 0.04, 0.09, 0.01, 0.16, 0.25])
+    open_cov[0, 2] = open_cov[2, 0] = 0.005  # a cross term: not in the per-vertex sigma
+    chain = LandmarkModel(
+        mean=np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), cov=open_cov, u=np.array([0.0, 0.9])
+    )
+    point = LandmarkModel(mean=np.array([[5.0, 5.0]]), cov=np.eye(2), u=np.zeros(0))
+    triangle = LandmarkModel(
+        mean=np.array([[3.0, 0.0], [4.0, 0.0], [3.0, 1.0]]),
+        cov=np.diag([0.04, 0.01, 0.01, 0.01, 0.0, 0.0]),
+        u=np.array([0.0, 0.2, 0.7]),
+        closed=True,
+    )
+    ref_covs = [np.diag([0.01, 0.0]), np.eye(2), np.zeros((2, 2))]
+    views = tuple(
+        LandmarkView(i, m.mean.mean(axis=0), c, m, (0, m.n_vertices))
+        for i, (m, c) in enumerate(zip([chain, point, triangle], ref_covs, strict=True))
+    )
+    belief = Belief(0, np.zeros(3), np.eye(3), np.zeros(3), views, (), 9, 0.0)
+    seg = belief_segments(belief, 0.5)
+    np.testing.assert_array_equal(seg["start"], [[0, 0], [1, 0], [3, 0], [4, 0], [3, 1]])
+    np.testing.assert_array_equal(seg["end"], [[1, 0], [1, 1], [4, 0], [3, 1], [3, 0]])
+    np.testing.assert_array_equal(seg["unknown"], [False, True, False, False, True])
+    # largest standard deviation of each vertex: its block plus the reference's
+    chain_sigma = np.sqrt([0.04, 0.09 + 0.01, 0.25])  # the y variances 0.04, 0.25 are larger
+    triangle_sigma = np.sqrt([0.04, 0.01, 0.0])
+    np.testing.assert_allclose(seg["sigma_start"], [*chain_sigma[:2], *triangle_sigma])
+    np.testing.assert_allclose(
+        seg["sigma_end"], [*chain_sigma[1:], *triangle_sigma[1:], triangle_sigma[0]]
+    )
+    empty = belief_segments(Belief(0, np.zeros(3), np.eye(3), np.zeros(3), (), (), 3, 0.0), 0.5)
+    assert empty["start"].shape == empty["end"].shape == (0, 2)
+    assert empty["unknown"].dtype == bool and empty["sigma_start"].shape == (0,)
+
+
 def test_raster_is_egocentric_heading_up():
     config = BeliefObservationConfig(raster_size=64, raster_cell=0.25)
     raster = BeliefRaster(config, unknown_threshold=0.5)

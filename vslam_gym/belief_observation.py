@@ -158,22 +158,8 @@ def belief_segments(belief: Belief, unknown_threshold: float) -> dict[str, np.nd
         vertices (square root of the largest eigenvalue of the vertex covariance given
         the reference plus the reference covariance; correlations ignored).
     """
-    starts, ends, unknown, sig_a, sig_b = [], [], [], [], []
-    for lm in belief.landmarks:
-        model = lm.model
-        if model.n_lines == 0:
-            continue
-        idx = model.line_vertices()
-        k = model.n_vertices
-        blocks = model.cov.reshape(k, 2, k, 2)[np.arange(k), :, np.arange(k), :]
-        total = blocks + lm.reference_cov[None, :, :]
-        sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(total)[:, -1], 0.0))
-        starts.append(model.mean[idx[:, 0]])
-        ends.append(model.mean[idx[:, 1]])
-        unknown.append(model.u > unknown_threshold)
-        sig_a.append(sigma[idx[:, 0]])
-        sig_b.append(sigma[idx[:, 1]])
-    if not starts:
+    models = [(lm.model, lm.reference_cov) for lm in belief.landmarks if lm.model.n_lines]
+    if not models:
         empty = np.zeros((0, 2))
         return {
             "start": empty,
@@ -182,13 +168,34 @@ def belief_segments(belief: Belief, unknown_threshold: float) -> dict[str, np.nd
             "sigma_start": np.zeros(0),
             "sigma_end": np.zeros(0),
         }
+    # All landmarks' vertices in one array: landmark i's at offset[i] .. offset[i] + k_i.
+    k = np.array([m.n_vertices for m, _ in models])
+    n = np.array([m.n_lines for m, _ in models])
+    offset = np.cumsum(k) - k
+    blocks = np.concatenate([_diagonal_blocks(m.cov) for m, _ in models])
+    total = blocks + np.repeat(np.stack([cov for _, cov in models]), k, axis=0)
+    sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(total)[:, -1], 0.0))
+    means = np.concatenate([m.mean for m, _ in models])
+    # Line j of a landmark joins its vertices j and (j + 1) mod k (LandmarkModel.line_vertices).
+    j = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    first = np.repeat(offset, n) + j
+    second = np.repeat(offset, n) + (j + 1) % np.repeat(k, n)
     return {
-        "start": np.concatenate(starts),
-        "end": np.concatenate(ends),
-        "unknown": np.concatenate(unknown),
-        "sigma_start": np.concatenate(sig_a),
-        "sigma_end": np.concatenate(sig_b),
+        "start": means[first],
+        "end": means[second],
+        "unknown": np.concatenate([m.u for m, _ in models]) > unknown_threshold,
+        "sigma_start": sigma[first],
+        "sigma_end": sigma[second],
     }
+
+
+def _diagonal_blocks(cov: np.ndarray) -> np.ndarray:
+    """The ``(k, 2, 2)`` diagonal blocks of a ``(2k, 2k)`` vertex covariance (a view)."""
+    k = cov.shape[0] // 2
+    rows, cols = cov.strides
+    return np.lib.stride_tricks.as_strided(
+        cov, shape=(k, 2, 2), strides=(2 * (rows + cols), rows, cols), writeable=False
+    )
 
 
 def object_boundary_length(
