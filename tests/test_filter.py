@@ -629,6 +629,37 @@ def test_observation_model_heading_sigma_keeps_the_heading_less_certain():
         SlamConfig.from_dict({"filter": {"observation_model_heading_sigma": -0.01}})
 
 
+def test_creation_heading_model_error_keeps_a_creation_from_pinning_an_uncertain_heading():
+    rng = np.random.default_rng(0)
+    pose = circle_route()[0]
+    scan = cast(pose, EDGES, PHI, SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
+    heading_sd, stored = {}, {}
+    for factor in (0.0, 1.0):
+        config = SlamConfig.from_dict(
+            {
+                "filter": {
+                    "initial_pose_sigma": [1e-4, 1e-4, 0.05],
+                    "creation_heading_model_error": factor,
+                }
+            }
+        )
+        slam = VertexSLAM(SENSOR, config, initial_pose=pose)
+        belief = slam.step(np.zeros(3), scan, PHI)
+        assert len(belief.landmarks) >= 1
+        assert np.linalg.eigvalsh(slam._sigma).min() > 0
+        heading_sd[factor] = float(np.sqrt(belief.pose_cov[2, 2]))
+        stored[factor] = [lm.heading_sigma for lm in slam._landmarks]
+    # made at the predicted heading sigma: 0.05 rad plus the odometry floor's 1 mrad for
+    # each of the two rotations of a standing robot
+    assert stored[0.0] == pytest.approx([0.01] * len(stored[0.0]))
+    assert stored[1.0][0] == pytest.approx(np.sqrt(0.05**2 + 2 * 0.001**2), rel=1e-9)
+    assert all(0.01 <= s <= stored[1.0][0] for s in stored[1.0])
+    # the thesis's creation pins the heading; with the model error it stays uncertain
+    assert heading_sd[0.0] < 0.5 * heading_sd[1.0] <= 0.025 + 1e-9, heading_sd
+    with pytest.raises(ValueError, match="creation_heading_model_error"):
+        SlamConfig.from_dict({"filter": {"creation_heading_model_error": -1.0}})
+
+
 def test_step_time_parts_are_non_negative_and_within_the_step():
     from dataclasses import replace
 

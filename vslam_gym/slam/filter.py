@@ -420,6 +420,7 @@ class _Landmark:
     detection_model: LandmarkModel | None = None  # model with detection_model_sigma
     last_seen: int = 0  # measurement update that last created, associated or updated it
     idle_checked: bool = False  # covered-duplicate test done since it went idle
+    heading_sigma: float = 0.0  # orientation model error [rad] of its observations
 
 
 class _MapSnapshot:
@@ -1344,6 +1345,7 @@ class VertexSLAM:
                     upd.A_vx,
                     upd.b_vx,
                     self._mu[lm.ref : lm.ref + REF_DIM],
+                    lm.heading_sigma,
                 ),
             )
         except (ValueError, np.linalg.LinAlgError):  # UpdateError, degenerate geometry, ...
@@ -1369,22 +1371,39 @@ class VertexSLAM:
         return "updated"
 
     def _observation_information(
-        self, k_obs: np.ndarray, a_vx: np.ndarray, b_vx: np.ndarray, reference: np.ndarray
+        self,
+        k_obs: np.ndarray,
+        a_vx: np.ndarray,
+        b_vx: np.ndarray,
+        reference: np.ndarray,
+        heading_sigma: float,
     ) -> np.ndarray:
         """``Phi3``'s information with the model errors of the config added.
 
-        ``observation_model_sigma`` per vertex coordinate, and
-        ``observation_model_heading_sigma`` as a rotation of all the observed vertices
-        (at the current pose: ``A_vx x + b_vx``) about the landmark's ``reference``
-        point [m].
+        ``observation_model_sigma`` per vertex coordinate, and ``heading_sigma`` [rad]
+        (the landmark's orientation model error, :meth:`_orientation_error`) as a
+        rotation of all the observed vertices (at the current pose: ``A_vx x + b_vx``)
+        about the landmark's ``reference`` point [m].
         """
         cfg = self.config.filter
         extra = None
-        if cfg.observation_model_heading_sigma > 0.0:
+        if heading_sigma > 0.0:
             vertices = a_vx @ self._mu[:3] + b_vx
             c = rotation_columns(vertices, reference)
-            extra = cfg.observation_model_heading_sigma**2 * np.outer(c, c)
+            extra = heading_sigma**2 * np.outer(c, c)
         return inflated_information(k_obs, cfg.observation_model_sigma, extra)
+
+    def _orientation_error(self) -> float:
+        """The orientation model error [rad] of a landmark created now.
+
+        ``observation_model_heading_sigma``, or ``creation_heading_model_error`` times
+        the pose heading standard deviation when that is larger.
+        """
+        cfg = self.config.filter
+        return max(
+            cfg.observation_model_heading_sigma,
+            cfg.creation_heading_model_error * float(np.sqrt(max(self._sigma[2, 2], 0.0))),
+        )
 
     def _verified(self, mu: np.ndarray, icp_pose: np.ndarray) -> bool:
         """Whether an update's new pose agrees with its ICP pose (update verification).
@@ -1491,6 +1510,7 @@ class VertexSLAM:
         select = np.zeros((d, 2 * k))
         for i in range(start, stop):  # r = mean of the object vertices (4.3.58)
             select[:REF_DIM, 2 * i : 2 * i + 2] = np.eye(2) / (stop - start)
+        heading_sigma = self._orientation_error()
         select_pose = None
         if d == POSE_REF_DIM:  # a landmark frame starts at the pose heading
             select_pose = np.zeros((d, POSE_DIM))
@@ -1507,7 +1527,9 @@ class VertexSLAM:
                     mu_r = mu_r + select_pose @ pose
                     a2[:, 2] = rotation_columns(model.mean, mu_r)
                 b2 = model.mean.reshape(-1) - a2 @ mu_r
-                k3 = self._observation_information(k_v, fit.A_vx, fit.b_vx, mu_r[:REF_DIM])
+                k3 = self._observation_information(
+                    k_v, fit.A_vx, fit.b_vx, mu_r[:REF_DIM], heading_sigma
+                )
                 mu, sigma, cond = state_space_update(
                     self._mu, self._sigma, None, a2, b2, k_v, fit.A_vx, fit.b_vx, k3
                 )
@@ -1535,6 +1557,7 @@ class VertexSLAM:
             closed=False,
             object_vertices=fit.object_vertices,
             last_seen=self._measurements,
+            heading_sigma=heading_sigma,
         )
         self._next_id += 1
         self._set_model(lm, self._model_of(lm))
