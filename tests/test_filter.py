@@ -655,7 +655,9 @@ def test_creation_heading_model_error_keeps_a_creation_from_pinning_an_uncertain
     assert stored[1.0][0] == pytest.approx(np.sqrt(0.05**2 + 2 * 0.001**2), rel=1e-9)
     assert all(0.01 <= s <= stored[1.0][0] for s in stored[1.0])
     # the thesis's creation pins the heading; with the model error it stays uncertain
-    assert heading_sd[0.0] < 0.5 * heading_sd[1.0] <= 0.025 + 1e-9, heading_sd
+    # (measured: 0.050 -> 0.010 rad without, 0.035 rad with)
+    assert heading_sd[0.0] < 0.5 * heading_sd[1.0], heading_sd
+    assert heading_sd[1.0] < stored[1.0][0]  # the scan still informs the heading
     with pytest.raises(ValueError, match="creation_heading_model_error"):
         SlamConfig.from_dict({"filter": {"creation_heading_model_error": -1.0}})
 
