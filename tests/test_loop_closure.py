@@ -94,6 +94,23 @@ def test_match_recovers_the_pose_of_an_earlier_visit_after_a_drift():
     assert strict.match(scan_at(true, rng), predicted, GATE_COV, now=100) is None
 
 
+def test_a_scan_of_few_points_matches_only_with_a_lower_min_points():
+    true = np.array([1.2, -0.8, 0.25])
+    predicted = true + np.array([0.3, -0.2, 0.04])
+    found = {}
+    for min_points in (None, 10):  # None: the matcher's 20
+        loop, rng = _closure(min_points=min_points)
+        points = scan_at(true, rng)
+        few = points[np.linspace(0, points.shape[0] - 1, 15).astype(int)]  # one small object
+        found[min_points] = loop.match(few, predicted, GATE_COV, now=100)
+    assert found[None] is None
+    assert found[10] is not None
+    assert np.hypot(*(found[10].pose[:2] - true[:2])) < 0.05
+    assert abs(wrap_angle(found[10].pose[2] - true[2])) < 0.01
+    assert SlamConfig().filter.loop_min_points == 10
+    assert SlamConfig.logs().filter.loop_min_points == SlamConfig.logs().matcher.min_points == 20
+
+
 def test_a_match_with_most_points_as_inliers_may_lie_farther_from_the_prediction():
     true = np.array([1.2, -0.8, 0.25])
     predicted = true + np.array([0.6, -0.45, 0.08])  # 3-6 sigma away (test above)
@@ -294,6 +311,7 @@ def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
         ({"loop_strong_inlier_fraction": -0.1}, "loop_strong_inlier_fraction"),
         ({"loop_strong_max_mahalanobis": float("nan")}, "loop_strong_max_mahalanobis"),
         ({"loop_correct_keyframes": "all"}, "loop_correct_keyframes must be one of"),
+        ({"loop_min_points": 2}, "loop_min_points"),
     ],
 )
 def test_loop_closure_options_are_validated(overrides, match):

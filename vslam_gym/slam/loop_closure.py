@@ -215,6 +215,8 @@ class LoopClosure:
         max_distance_start: the matcher's first correspondence distance [m] for the
             revisit match (None: ``matcher``'s): a drift beyond it is not pulled in ...
         max_distance_mid: ... and its distance [m] at the end of the coarse phase.
+        min_points: fewest scan points (and inliers) of a revisit match (None:
+            ``matcher``'s ``min_points``).
     """
 
     def __init__(
@@ -233,9 +235,11 @@ class LoopClosure:
         max_distance_mid: float | None = None,
         strong_inlier_fraction: float = 1.0,
         strong_max_mahalanobis: float = 0.0,
+        min_points: int | None = None,
     ) -> None:
         config = replace(
             matcher,
+            min_points=matcher.min_points if min_points is None else int(min_points),
             revisit_radius=radius,
             keyframe_distance=keyframe_distance,
             keyframe_heading_deg=keyframe_heading_deg,
