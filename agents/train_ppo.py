@@ -11,8 +11,9 @@ range nobody trained on.
 
 Writes into ``--out``: ``final_model.zip`` (``PPO.load`` reads it), checkpoints
 ``checkpoints/ppo_<steps>_steps.zip``, ``monitor/`` CSVs (episode return and length per
-environment), ``train_config.json``; TensorBoard logs with ``--tensorboard DIR`` (needs
-``pip install "vslam-gym[tensorboard]"``).
+environment), ``train_config.json``, ``logs/progress.csv`` (PPO's statistics per rollout:
+losses, entropy, explained variance, fps); TensorBoard logs instead of ``logs/`` with
+``--tensorboard DIR`` (needs ``pip install "vslam-gym[tensorboard]"``).
 
 With ``--imitate AGENT`` the policy is first fitted to ``--imitation-steps`` steps of a
 scripted agent (behaviour cloning, ``agents/imitation.py``; with ``--imitation-rounds``
@@ -215,6 +216,12 @@ def train(
         device="cpu",
         verbose=0,
     )
+    if tensorboard is None:
+        # PPO's training statistics per rollout into the run's own folder (SB3 would
+        # otherwise make an empty folder in the system's temporary directory per run).
+        from stable_baselines3.common.logger import configure
+
+        model.set_logger(configure(str(out / "logs"), ["csv"]))
 
     class WallClockLimit(BaseCallback):
         """Stops training at a wall-clock deadline."""

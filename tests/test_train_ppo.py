@@ -37,6 +37,9 @@ def test_ppo_smoke_run_saves_a_model_that_acts(tmp_path):
     ]
     config = json.loads((tmp_path / "train_config.json").read_text())
     assert config["timesteps"] == 128 and config["steps_per_s"] > 0
+    # one row of PPO statistics per rollout (2 rollouts of 64 steps), in the run's folder
+    progress = (tmp_path / "logs" / "progress.csv").read_text().splitlines()
+    assert len(progress) == 3 and "train/entropy_loss" in progress[0]
     model = PPO.load(path, device="cpu")
     env = gym.make("VSlam/ExploreSmall-v0")
     obs, _ = env.reset(seed=3)
