@@ -172,7 +172,7 @@ def belief_segments(belief: Belief, unknown_threshold: float) -> dict[str, np.nd
     k = np.array([m.n_vertices for m, _ in models])
     n = np.array([m.n_lines for m, _ in models])
     offset = np.cumsum(k) - k
-    blocks = np.concatenate([_diagonal_blocks(m.cov) for m, _ in models])
+    blocks = np.concatenate([m.vertex_blocks() for m, _ in models])
     total = blocks + np.repeat(np.stack([cov for _, cov in models]), k, axis=0)
     sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(total)[:, -1], 0.0))
     means = np.concatenate([m.mean for m, _ in models])
@@ -187,15 +187,6 @@ def belief_segments(belief: Belief, unknown_threshold: float) -> dict[str, np.nd
         "sigma_start": sigma[first],
         "sigma_end": sigma[second],
     }
-
-
-def _diagonal_blocks(cov: np.ndarray) -> np.ndarray:
-    """The ``(k, 2, 2)`` diagonal blocks of a ``(2k, 2k)`` vertex covariance (a view)."""
-    k = cov.shape[0] // 2
-    rows, cols = cov.strides
-    return np.lib.stride_tricks.as_strided(
-        cov, shape=(k, 2, 2), strides=(2 * (rows + cols), rows, cols), writeable=False
-    )
 
 
 def object_boundary_length(

@@ -551,11 +551,25 @@ def majority_id(hit_ids: Iterable[int]) -> int:
 
     Ties go to the smallest id; ``-1`` when no beam hit anything.
     """
+    ranked = _ranked_hits(hit_ids)
+    return ranked[0][0] if ranked else NO_HIT
+
+
+def set_obstacles(hit_ids: Iterable[int], share: float = OBSTACLE_SHARE) -> tuple[int, ...]:
+    """The obstacle ids hit by at least ``share`` of the beams that hit something.
+
+    Most hit first, ties to the smaller id; ``-1`` (no return) is ignored; empty when no
+    beam hit anything.
+    """
+    ranked = _ranked_hits(hit_ids)
+    total = sum(c for _, c in ranked)
+    return tuple(i for i, c in ranked if c >= share * total)
+
+
+def _ranked_hits(hit_ids: Iterable[int]) -> list[tuple[int, int]]:
+    """``(obstacle id, beams)`` of the ids hit, most hit first, ties to the smaller id."""
     counts = Counter(int(i) for i in np.asarray(hit_ids).ravel() if int(i) != NO_HIT)
-    if not counts:
-        return NO_HIT
-    top = max(counts.values())
-    return min(i for i, c in counts.items() if c == top)
+    return sorted(counts.items(), key=lambda item: (-item[1], item[0]))
 
 
 def landmark_majority_ids(decisions: Iterable[DecisionRecord]) -> dict[int, int]:
@@ -582,29 +596,33 @@ def association_precision(
     decisions: Iterable[DecisionRecord],
     landmark_ids: Mapping[int, int],
     outcomes: Sequence[str] = ASSOCIATION_OUTCOMES,
+    also: Mapping[int, Sequence[int]] | None = None,
 ) -> tuple[float, int]:
     """Fraction of set-to-landmark associations that are correct.
 
     An association is a decision with outcome ``"updated"`` or ``"associated"`` (or
     those in ``outcomes``: ``("updated",)`` counts only the associations that changed the
     map); it is correct when the set's majority obstacle id equals the landmark's
-    (:func:`landmark_majority_ids`).
+    (:func:`landmark_majority_ids`), or is one of ``also[landmark]`` when given.
 
     Returns:
         ``(precision, associations)``; precision is NaN when there is no association.
     """
+    also = also or {}
     total = correct = 0
     for d in decisions:
         if d.outcome not in outcomes:
             continue
         total += 1
-        truth = landmark_ids.get(d.landmark, NO_HIT)
-        correct += int(truth != NO_HIT and d.majority_id == truth)
+        ok = d.majority_id == landmark_ids.get(d.landmark, NO_HIT)
+        correct += int(
+            d.majority_id != NO_HIT and (ok or d.majority_id in also.get(d.landmark, ()))
+        )
     return (correct / total if total else math.nan), total
 
 
 def compound_precision(
-    decisions: Sequence[DecisionRecord], landmark_ids: Mapping[int, int]
+    decisions: Iterable[DecisionRecord], landmark_ids: Mapping[int, int]
 ) -> tuple[float, int]:
     """:func:`association_precision` that also accepts the obstacles a landmark was made of.
 
@@ -622,21 +640,12 @@ def compound_precision(
     Returns:
         ``(precision, associations)``; precision is NaN when there is no association.
     """
+    decisions = list(decisions)
     made_of: dict[int, tuple[int, ...]] = {}
     for d in decisions:
         if d.outcome == "created" and d.landmark >= 0:
             made_of.setdefault(d.landmark, d.obstacles)
-    total = correct = 0
-    for d in decisions:
-        if d.outcome not in ASSOCIATION_OUTCOMES:
-            continue
-        total += 1
-        truth = landmark_ids.get(d.landmark, NO_HIT)
-        members = made_of.get(d.landmark, ())
-        correct += int(
-            d.majority_id != NO_HIT and (d.majority_id == truth or d.majority_id in members)
-        )
-    return (correct / total if total else math.nan), total
+    return association_precision(decisions, landmark_ids, also=made_of)
 
 
 def duplicate_fraction(landmark_ids: Mapping[int, int] | Sequence[int]) -> float:
@@ -664,18 +673,6 @@ def timing_summary(
     if ms.size == 0:
         return math.nan, math.nan
     return float(np.median(ms)), float(np.percentile(ms, percentile))
-
-
-def set_obstacles(hit_ids: Iterable[int], share: float = OBSTACLE_SHARE) -> tuple[int, ...]:
-    """The obstacle ids hit by at least ``share`` of the beams that hit something.
-
-    Most hit first, ties to the smaller id; ``-1`` (no return) is ignored; empty when no
-    beam hit anything.
-    """
-    counts = Counter(int(i) for i in np.asarray(hit_ids).ravel() if int(i) != NO_HIT)
-    total = sum(counts.values())
-    ranked = sorted(counts.items(), key=lambda item: (-item[1], item[0]))
-    return tuple(i for i, c in ranked if c >= share * total)
 
 
 def episode_metrics(log: EpisodeLog) -> dict[str, Any]:

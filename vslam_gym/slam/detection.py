@@ -291,8 +291,7 @@ def _vertex_polar(
     """:func:`vertex_polar_distribution` without the input checks (hot path)."""
     k = model.n_vertices
     mean = model.mean
-    diag = np.arange(k)
-    blocks = model.cov.reshape(k, 2, k, 2)[diag, :, diag, :]  # (k, 2, 2) per-vertex blocks
+    blocks = model.vertex_blocks()
     dx = mean[:, 0] - pose[0]
     dy = mean[:, 1] - pose[1]
     r = np.hypot(dx, dy)
@@ -517,11 +516,9 @@ def model_parts(model: LandmarkModel) -> ModelParts:
     They depend on the model's means and covariance only; a caller that tests the same
     model many times may compute them once and pass them in.
     """
-    k = model.n_vertices
-    diag = np.arange(k)
     mu_vv, sigma_vv = model.line_blocks()
     return ModelParts(
-        blocks=model.cov.reshape(k, 2, k, 2)[diag, :, diag, :],
+        blocks=model.vertex_blocks(),
         lines=model.line_vertices(),
         mu_vv=mu_vv,
         sigma_vv=sigma_vv,

@@ -79,6 +79,12 @@ class LandmarkModel:
         """``(2, 2)`` covariance of vertex ``i`` [m^2]."""
         return self.cov[2 * i : 2 * i + 2, 2 * i : 2 * i + 2]
 
+    def vertex_blocks(self) -> np.ndarray:
+        """``(k, 2, 2)`` covariance of every vertex [m^2] (the diagonal blocks of ``cov``)."""
+        k = self.n_vertices
+        diag = np.arange(k)
+        return self.cov.reshape(k, 2, k, 2)[diag, :, diag, :]
+
     def line_blocks(self) -> tuple[np.ndarray, np.ndarray]:
         """Joint Gaussian of each line's two vertices.
 
