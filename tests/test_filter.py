@@ -343,6 +343,41 @@ def test_icp_stop_beyond_gate_saves_iterations_without_changing_decisions(monkey
         SlamConfig.from_dict({"filter": {"icp_stop_beyond_gate": -1.0}})
 
 
+def test_icp_prior_weight_is_the_pose_prior_in_point_units(monkeypatch):
+    import vslam_gym.slam.filter as filter_module
+
+    weights = []
+    original = filter_module.align_many
+
+    def recording(*args, **kwargs):
+        weights.append(kwargs.get("prior_weight"))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(filter_module, "align_many", recording)
+    run(SlamConfig(), steps=6)
+    assert weights and all(w is None for w in weights)  # the default: no prior
+    floor = (0.05, 0.04, 0.02)
+    cfg = SlamConfig.from_dict(
+        {"filter": {"icp_prior_point_sigma": 0.03, "icp_prior_sigma_floor": list(floor)}}
+    )
+    weights.clear()
+    slam, beliefs, _, true = run(cfg, steps=30)
+    assert weights and all(w is not None for w in weights)
+    assert len({w.tobytes() for w in weights}) > 1  # it follows the pose covariance
+    # sigma_point^2 (Sigma_pose + floor^2)^-1 at the current pose covariance
+    want = 0.03**2 * np.linalg.inv(slam._sigma[:3, :3] + np.diag(np.square(floor)))
+    got = slam._icp_prior_weight()
+    np.testing.assert_allclose(got, want, rtol=1e-9)
+    np.testing.assert_array_equal(got, got.T)
+    assert np.linalg.eigvalsh(got).min() > 0
+    errors = [np.hypot(*(b.pose[:2] - t[:2])) for b, t in zip(beliefs, true[1:30], strict=True)]
+    assert max(errors) < 0.1
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+    for bad in ({"icp_prior_point_sigma": -0.1}, {"icp_prior_sigma_floor": [0.1, -0.1, 0.0]}):
+        with pytest.raises(ValueError, match="icp_prior"):
+            SlamConfig.from_dict({"filter": bad})
+
+
 def test_icp_retry_rescues_an_alignment_pulled_off_beyond_the_gate(monkeypatch):
     import dataclasses
 

@@ -285,6 +285,48 @@ def test_point_in_front_of_unknown_line_is_pulled_onto_it():
     assert res.rms < 1e-3
 
 
+def test_pose_prior_keeps_a_set_from_sliding_along_a_wall():
+    """The point in front of the unknown line pulls the set 0.5 m along the wall; with a
+    prior on the pose (``prior_weight``) the alignment stays near the prior. Both forms
+    of the step reach the same minimum; a zero weight changes nothing and a huge one
+    holds the prior."""
+    model = wall_with_unknown_end(1.0)
+    points = np.vstack([WALL_POINTS, IN_FRONT])
+    cfgs = [IcpConfig(max_iterations=1000), IcpConfig(max_iterations=1000, point_to_line=True)]
+    for cfg in cfgs:
+        plain = align(points, model, ORIGIN, cfg)
+        assert plain.converged and plain.pose[0] < -0.5
+        zero = align(points, model, ORIGIN, cfg, prior_weight=np.zeros((3, 3)))
+        np.testing.assert_array_equal(zero.pose, plain.pose)
+        assert zero.iterations == plain.iterations
+        held = align(points, model, ORIGIN, cfg, prior_weight=1e9 * np.eye(3))
+        np.testing.assert_allclose(held.pose, ORIGIN, atol=1e-6)
+    weight = np.diag([10.0, 10.0, 10.0])
+    thesis, line = (align(points, model, ORIGIN, cfg, prior_weight=weight) for cfg in cfgs)
+    assert thesis.converged and line.converged
+    assert line.iterations < thesis.iterations
+    np.testing.assert_allclose(thesis.pose, line.pose, atol=1e-3)
+    assert abs(line.pose[0] - ORIGIN[0]) < 0.02
+    # the prior costs the points: they no longer fit exactly
+    assert line.rms > plain.rms
+
+
+@pytest.mark.parametrize(
+    "weight, match",
+    [
+        (np.eye(2), "finite"),
+        (np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]), "symmetric"),
+        (-np.eye(3), "positive"),
+        (np.full((3, 3), np.nan), "finite"),
+    ],
+)
+def test_bad_prior_weight_raises(weight, match):
+    with pytest.raises(ValueError, match=match):
+        align(WALL_POINTS, wall_with_unknown_end(1.0), ORIGIN, prior_weight=weight)
+    with pytest.raises(ValueError, match=match):
+        align_many(WALL_POINTS, [wall_with_unknown_end(1.0)], ORIGIN, prior_weight=weight)
+
+
 # ----------------------------------------------------------------- robustness
 
 
@@ -527,11 +569,15 @@ def test_align_many_equals_align_per_model():
         {"point_to_line": False, "max_iterations": 200},
         {"point_to_line": True, "max_correspondence_distance": 0.3},
         {"point_to_line": True, "centre_on_centroid": False},
+        {"point_to_line": True, "prior_weight": np.diag([4.0, 2.0, 30.0])},
+        {"point_to_line": False, "max_iterations": 200, "prior_weight": 0.5 * np.eye(3)},
     ],
 )
 def test_batched_alignments_agree_with_one_at_a_time(cfg):
     """More alignments than ``_SEQUENTIAL_AT_MOST`` run side by side (``_align_batch``):
     each result matches :func:`align` of that set alone, up to round-off."""
+    cfg = dict(cfg)
+    weight = cfg.pop("prior_weight", None)
     rng = np.random.default_rng(7)
     prior = TRUE + OFFSETS[0]
     models, points = [], []
@@ -543,13 +589,17 @@ def test_batched_alignments_agree_with_one_at_a_time(cfg):
     points.append(np.zeros((0, 2)))
     models.append(models[0])  # ... and one behind the model: no line faces it
     points.append(np.array([[0.0, 9.0], [0.5, 9.2], [1.0, 9.4]]))
+    if weight is not None:
+        # A prior pulls that set onto the model, where its points lie at a vertex,
+        # equidistant from two segments: a round-off tie decides their line.
+        models, points = models[:-1], points[:-1]
     assert len(models) > icp._SEQUENTIAL_AT_MOST
     icp_cfg = IcpConfig(**cfg)
     limits = (SENSOR.max_range, SENSOR.half_fov)
-    many = align_many(points, models, prior, icp_cfg, *limits)
+    many = align_many(points, models, prior, icp_cfg, *limits, prior_weight=weight)
     reasons = set()
     for got, pts, model in zip(many, points, models, strict=True):
-        single = align(pts, model, prior, icp_cfg, *limits)
+        single = align(pts, model, prior, icp_cfg, *limits, prior_weight=weight)
         reasons.add(single.reason)
         assert (got.reason, got.n_used, got.frozen) == (
             single.reason,
@@ -565,7 +615,8 @@ def test_batched_alignments_agree_with_one_at_a_time(cfg):
         np.testing.assert_allclose(got.transform, single.transform, rtol=1e-6, atol=atol)
         assert got.rms == pytest.approx(single.rms, abs=atol) or got.rms == single.rms
     assert {"converged", "too_few_points"} <= reasons
-    assert all(np.linalg.norm(r.pose[:2] - TRUE[:2]) < 0.05 for r in many[:6])
+    if weight is None:  # (a prior 0.3 m off holds the poses back)
+        assert all(np.linalg.norm(r.pose[:2] - TRUE[:2]) < 0.05 for r in many[:6])
 
 
 # ----------------------------------------------------------------- cycles

@@ -1132,6 +1132,15 @@ class VertexSLAM:
         floor = np.square(self.config.filter.icp_gate_sigma_floor)
         return self._sigma[:3, :3] + np.diag(floor)
 
+    def _icp_prior_weight(self) -> np.ndarray | None:
+        """The ICP pose prior's weight (``FilterConfig.icp_prior_point_sigma``), or None."""
+        cfg = self.config.filter
+        if cfg.icp_prior_point_sigma <= 0.0:
+            return None
+        cov = self._sigma[:3, :3] + np.diag(np.square(cfg.icp_prior_sigma_floor))
+        weight = cfg.icp_prior_point_sigma**2 * np.linalg.inv(cov)
+        return 0.5 * (weight + weight.T)
+
     def _icp_bounds(self, landmarks: list[_Landmark]) -> list[PoseBound | None] | None:
         """Per alignment the ICP stop bound (``FilterConfig.icp_stop_beyond_gate``)."""
         cfg = self.config.filter
@@ -1303,6 +1312,7 @@ class VertexSLAM:
             self.sensor.half_fov,
             lines=[pairs[i][0].geometry[pairs[i][1]] for i in todo],
             bounds=self._icp_bounds([pairs[i][0].landmarks[pairs[i][1]] for i in todo]),
+            prior_weight=self._icp_prior_weight(),
         )
         for i, res in zip(todo, aligned, strict=True):
             results[i] = res

@@ -491,6 +491,51 @@ def _solve_spd3(
     return t if all(math.isfinite(v) for v in t) else None
 
 
+def _prior_terms(w, a, b, d0, d1, d2):
+    """The pose prior's terms of one ICP step's normal equations (``prior_weight``).
+
+    The step moves the pose as it moves the points, ``x' ~ x + J t`` with
+    ``J = [[1, 0, a], [0, 1, b], [0, 0, 1]]`` (``a = -(y - o_y)``, ``b = x - o_x`` for the
+    rotation about ``o``), and the prior adds ``(x' - x_0)^T W (x' - x_0)`` to the sum of
+    squared point residuals. Returns ``J^T W J`` as ``(h00, h01, h02, h11, h12, h22)``
+    and ``J^T W d`` for the current offset ``d = (d0, d1, d2) = x - x_0``. ``w`` is
+    ``W``'s upper triangle ``(w00, w01, w02, w11, w12, w22)``; every other argument may be
+    a float or an array (element-wise).
+    """
+    w00, w01, w02, w11, w12, w22 = w
+    c0 = a * w00 + b * w01 + w02
+    c1 = a * w01 + b * w11 + w12
+    c2 = a * w02 + b * w12 + w22
+    g0 = w00 * d0 + w01 * d1 + w02 * d2
+    g1 = w01 * d0 + w11 * d1 + w12 * d2
+    g2 = w02 * d0 + w12 * d1 + w22 * d2
+    h = (w00, w01, c0, w11, c1, a * c0 + b * c1 + c2)
+    return h, (g0, g1, a * g0 + b * g1 + g2)
+
+
+def _add6(h, k):
+    """Element-wise sum of two 6-tuples (upper triangles of symmetric ``3 x 3`` matrices)."""
+    return tuple(a + b for a, b in zip(h, k, strict=True))
+
+
+def _prior_weight(weight: np.ndarray | None) -> tuple[float, ...] | None:
+    """``prior_weight`` checked: a symmetric positive semi-definite ``(3, 3)`` matrix.
+
+    Returns its upper triangle ``(w00, w01, w02, w11, w12, w22)``, None for None.
+
+    Raises:
+        ValueError: not a finite symmetric positive semi-definite ``(3, 3)`` matrix.
+    """
+    if weight is None:
+        return None
+    w = np.asarray(weight, dtype=float)
+    if w.shape != (3, 3) or not np.isfinite(w).all():
+        raise ValueError(f"prior_weight must be a finite (3, 3) matrix, got {w!r}")
+    if not np.allclose(w, w.T) or np.linalg.eigvalsh(w)[0] < -1e-12 * max(1.0, abs(w).max()):
+        raise ValueError(f"prior_weight must be symmetric positive semi-definite, got {w!r}")
+    return tuple(float(w[i, j]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+
+
 _State = tuple[tuple[float, float, float], float, float, float, int, float]
 """An ICP state: pose estimate, transform ``t_f`` and the used points and rms there."""
 
@@ -542,6 +587,8 @@ def align(
     config: IcpConfig | None = None,
     max_range: float | None = None,
     half_fov: float | None = None,
+    *,
+    prior_weight: np.ndarray | None = None,
 ) -> IcpResult:
     """Align a measurement set to a landmark model by ICP and return ``x_icp`` (4.3.4-4.3.16).
 
@@ -566,6 +613,13 @@ def align(
             not visible.
         half_fov: if given, lines entirely outside ``[-half_fov, half_fov]`` [rad] around
             the current heading are not visible.
+        prior_weight: optional ``(3, 3)`` symmetric positive semi-definite ``W``: every
+            step minimises the squared point residuals plus ``(x - pose)^T W (x - pose)``
+            (heading wrapped), a prior on the aligned pose in units of one point's
+            squared residual (``W = sigma_point^2 Sigma_prior^-1``). It holds the
+            directions the points leave free (a set on one wall slides along it without
+            it) and keeps a set that sees more than the model holds near the prior. None
+            (the thesis): no prior.
 
     Returns:
         The aligned pose, the accumulated transform and diagnostics.
@@ -579,7 +633,14 @@ def align(
     pose0 = check_pose(pose)
     _check_limits(max_range, half_fov)
     return _align(
-        q, model.u > config.unknown_threshold, _Lines(model), pose0, config, max_range, half_fov
+        q,
+        model.u > config.unknown_threshold,
+        _Lines(model),
+        pose0,
+        config,
+        max_range,
+        half_fov,
+        prior=_prior_weight(prior_weight),
     )
 
 
@@ -593,6 +654,7 @@ def align_many(
     *,
     lines: list[LineGeometry] | None = None,
     bounds: list[PoseBound | None] | None = None,
+    prior_weight: np.ndarray | None = None,
 ) -> list[IcpResult]:
     """:func:`align` of one set (or one set per model) to each of several models.
 
@@ -617,6 +679,8 @@ def align_many(
             ``"out_of_bound"``, the pose where it left) after the first step that takes
             the pose out of it. A caller that rejects results beyond a gate saves the
             iterations of a diverging alignment.
+        prior_weight: optional ``(3, 3)`` pose prior of every alignment (see
+            :func:`align`).
         (others): as :func:`align`.
 
     Returns:
@@ -642,7 +706,8 @@ def align_many(
     elif len(bounds) != len(models):
         raise ValueError(f"got {len(bounds)} bounds for {len(models)} models")
     unknowns = [m.u > config.unknown_threshold for m in models]
-    return _align_batch(sets, lines, unknowns, pose0, config, max_range, half_fov, bounds)
+    prior = _prior_weight(prior_weight)
+    return _align_batch(sets, lines, unknowns, pose0, config, max_range, half_fov, bounds, prior)
 
 
 def line_geometry(model: LandmarkModel) -> LineGeometry:
@@ -723,11 +788,13 @@ def _align(
     half_fov: float | None,
     bound: PoseBound | None = None,
     resume: _Progress | None = None,
+    prior: tuple[float, ...] | None = None,
 ) -> IcpResult:
     """:func:`align` on validated inputs (the loop is inline: it is the hot path).
 
     ``resume``: continue an alignment that ran its first ``resume.it`` iterations
     elsewhere (:func:`_align_batch`). ``unknown``: ``(lines,)`` bool, the unknown lines.
+    ``prior``: the upper triangle of ``prior_weight`` (:func:`_prior_weight`) or None.
     """
     max_d2 = config.max_correspondence_distance**2  # inf: every point may be used
     x0, y0, th0 = (float(v) for v in pose0)
@@ -802,15 +869,20 @@ def _align(
         # frame. With d_i = -e_i n_i (4.3.15), b = sum J^T d = -sum e_i a_i in both forms.
         a3 = ux * ny - uy * nx
         rhs = (-float(e @ nx), -float(e @ ny), -float(e @ a3))
+        hp = None
+        if prior is not None:
+            dth = (tfth + math.pi) % TWO_PI - math.pi
+            hp, g = _prior_terms(prior, oy - x[1], x[0] - ox, x[0] - x0, x[1] - y0, dth)
+            rhs = (rhs[0] - g[0], rhs[1] - g[1], rhs[2] - g[2])
         t = None
         if config.point_to_line:  # H = sum a_i^T a_i
             xx, xy, yy = float(nx @ nx), float(nx @ ny), float(ny @ ny)
             h = (xx, xy, float(nx @ a3), yy, float(ny @ a3), float(a3 @ a3))
-            t = _solve_spd3(h, rhs, config.max_condition)
+            t = _solve_spd3(h if hp is None else _add6(h, hp), rhs, config.max_condition)
         if t is None:  # H = sum J_i^T J_i (4.3.10); also the point-to-line fallback
             sx, sy = float(_sum(ux)), float(_sum(uy))
             h = (n_used, 0.0, -sy, n_used, sx, float(ux @ ux + uy @ uy))
-            t = _solve_spd3(h, rhs, config.max_condition)
+            t = _solve_spd3(h if hp is None else _add6(h, hp), rhs, config.max_condition)
         if t is None:
             reason = "singular"
             break
@@ -968,6 +1040,7 @@ def _align_batch(
     max_range: float | None,
     half_fov: float | None,
     bounds: list[PoseBound | None],
+    prior: tuple[float, ...] | None = None,
 ) -> list[IcpResult]:
     """:func:`align` of set ``k`` to the model of ``lines[k]``, all from ``pose0``, side by side.
 
@@ -991,7 +1064,17 @@ def _align_batch(
     finished: dict[int, IcpResult] = {}
     if 0 < rows.size <= _SEQUENTIAL_AT_MOST:
         finished = {
-            r: _align(sets[r], unknowns[r], lines[r], pose0, config, max_range, half_fov, bounds[r])
+            r: _align(
+                sets[r],
+                unknowns[r],
+                lines[r],
+                pose0,
+                config,
+                max_range,
+                half_fov,
+                bounds[r],
+                prior=prior,
+            )
             for r in rows.tolist()
         }
     elif rows.size:
@@ -1003,7 +1086,7 @@ def _align_batch(
             config,
             max_range,
             half_fov,
-            (sets, lines, unknowns, bounds),
+            (sets, lines, unknowns, bounds, prior),
         )
     # Report the transform angle in [-pi, pi); the pose heading is th0 + t_f,theta,
     # continuous with the prior (pose - prior is the correction).
@@ -1048,7 +1131,7 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
     Returns the results of the alignments finished by :func:`_align`, by index.
     """
     px, py, pth, tfx, tfy, tfth, iterations, n_used, rms, frozen = state
-    sets, lines, unknowns, bounds = inputs
+    sets, lines, unknowns, bounds, prior = inputs
     x0, y0, th0 = (float(v) for v in pose0)
     finished: dict[int, IcpResult] = {}
     p = px.size
@@ -1086,6 +1169,7 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
                     half_fov,
                     bounds[r],
                     progress,
+                    prior,
                 )
             return finished
         running = np.ones(act.size, dtype=bool)
@@ -1140,7 +1224,7 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
                     go[k] = False
                     stop(np.array([k]), "cycle")
         if go.any():
-            _step(batch, act, go, running, stop, sums, nx, ny, e, kf, state, pose0, config)
+            _step(batch, act, go, running, stop, sums, (nx, ny, e, kf), state, pose0, config, prior)
             upd = act[running]  # stepped and not converged
             check = upd[bounded[upd]]
             if check.size:
@@ -1156,8 +1240,13 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
     return finished
 
 
-def _step(batch, act, go, running, stop, sums, nx, ny, e, kf, state, pose0, config) -> None:
-    """One least-squares step of the alignments ``act[go]``; stops the singular and converged."""
+def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prior) -> None:
+    """One least-squares step of the alignments ``act[go]``; stops the singular and converged.
+
+    ``terms``: every point's line normal, signed distance and use ``(nx, ny, e, kf)``;
+    ``prior``: the upper triangle of ``prior_weight`` or None.
+    """
+    nx, ny, e, kf = terms
     px, py, pth, tfx, tfy, tfth, iterations = state[:7]
     x0, y0, th0 = pose0
     used = sums[:, 0]
@@ -1181,9 +1270,18 @@ def _step(batch, act, go, running, stop, sums, nx, ny, e, kf, state, pose0, conf
     rhs = -s[:, :3]
     # H = sum J_i^T J_i (4.3.10): the thesis form, and the point-to-line fallback.
     thesis = stack_last(used, np.zeros_like(used), -s[:, 4], used, s[:, 3], s[:, 5])
-    if config.point_to_line:  # H = sum a_i^T a_i, both forms solved in one call
+    h_line = s[:, 6:12] if config.point_to_line else None
+    if prior is not None:
+        x, y = px[act], py[act]
+        dth = np.mod(tfth[act] + math.pi, TWO_PI) - math.pi
+        hp, gp = _prior_terms(prior, oy - y, x - ox, x - x0, y - y0, dth)
+        hp = stack_last(*(np.broadcast_to(v, x.shape) for v in hp))
+        rhs = rhs - stack_last(*gp)
+        thesis = thesis + hp
+        h_line = None if h_line is None else h_line + hp
+    if h_line is not None:  # H = sum a_i^T a_i, both forms solved in one call
         both, ok_both = _solve_spd3_many(
-            np.concatenate([s[:, 6:12], thesis]), np.concatenate([rhs, rhs]), config.max_condition
+            np.concatenate([h_line, thesis]), np.concatenate([rhs, rhs]), config.max_condition
         )
         a = used.size
         t = np.where(ok_both[:a, None], both[:a], both[a:])
