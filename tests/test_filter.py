@@ -115,6 +115,11 @@ def test_config_from_dict_and_presets():
     fast = SlamConfig.preset("fast")
     assert fast.filter.association_pose == "predicted_first"
     assert fast.filter.measurement_min_travel == fast.filter.measurement_min_turn == 0.2
+    # ... and a weak ICP pose prior (measured better there, worse in the default)
+    assert fast.filter.icp_prior_point_sigma == 0.03
+    assert fast.filter.icp_prior_sigma_floor == fast.filter.icp_gate_sigma_floor
+    for name in ("default", "thesis", "logs"):
+        assert SlamConfig.preset(name).filter.icp_prior_point_sigma == 0.0
     # otherwise the default
     assert fast.model == SlamConfig().model and fast.icp == SlamConfig().icp
     # the logs preset stops alternating ICP alignments at their first return

@@ -320,7 +320,15 @@ class FilterConfig:
             pulled off it (``house`` seed 0: more than half of the alignments end
             beyond the plausibility gate, many metres and up to 1.5 rad from a
             prediction good to 2 cm, and 60 of 169 new landmarks are made beside a
-            gated landmark of the same obstacle). 0 (the thesis): no prior.
+            gated landmark of the same obstacle). 0 (the thesis): no prior. Measured at
+            0.03 m with floors of 0, (0.05, 0.05, 0.02) and the gate's (0.2, 0.2,
+            0.1) (``vslam-gym evaluate``, seeds 0-9, ``house`` 0-19, 2026-11-26):
+            fewer landmarks (``house`` 165 -> 128-141, ``curved`` 111 -> 53) and
+            ``house`` steps about a fifth shorter, ``small`` and (with the gate's floor)
+            ``curved`` better, but position ATE worse on ``single_landmark`` (0.176 ->
+            0.227-0.316 m) and ``house`` (0.208 -> 0.267-0.275 m): not the default. In
+            the ``fast`` preset at 0.03 m with the gate's floor (docs/measurements.md,
+            "ICP pose prior").
         icp_prior_sigma_floor: standard deviations ``(x [m], y [m], theta [rad])`` added in
             quadrature to the pose covariance in the ICP prior (``icp_prior_point_sigma``).
         icp_gate_sigma_floor: standard deviations ``(x [m], y [m], theta [rad])`` added in
