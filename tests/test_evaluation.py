@@ -16,6 +16,7 @@ from vslam_gym.evaluation import (
     chi2_interval,
     cmd_evaluate,
     compound_precision,
+    creation_causes,
     duplicate_fraction,
     episode_metrics,
     evaluate,
@@ -239,6 +240,35 @@ def test_compound_precision_accepts_the_obstacles_the_landmark_was_created_from(
     )
 
 
+def test_creation_causes_name_what_became_of_the_same_obstacle_candidates():
+    d, nan = DecisionRecord, float("nan")
+    far, gated = (0, "far", nan, nan, False), (0, "gated", nan, nan, False)
+    log = [
+        d(1, 0, 9, "created", 0, 1),  # obstacle 1's first landmark
+        d(1, 10, 19, "created", 1, 2),  # obstacle 2's
+        d(2, 0, 9, "created", 2, 1, (1,), (far,)),  # beside landmark 0, not aligned
+        d(3, 0, 9, "created", 3, 1, (1,), (far, gated)),  # aligned and gated
+        # the furthest candidate of the obstacle counts: the detection test failed
+        d(4, 0, 9, "created", 4, 1, (1,), (gated, (2, "converged", 4.0, 9.0, False))),
+        d(5, 0, 9, "created", 5, 1, (1,), ((3, "converged", 1.0, 2.0, True),)),
+        # a candidate of another obstacle does not make a duplicate
+        d(6, 10, 19, "created", 6, 3, (3,), ((0, "converged", 9.0, 99.0, False),)),
+        d(7, 0, 9, "created", 7, -1, (), (far,)),  # no majority obstacle
+        d(8, 0, 9, "updated", 0, 1, (1,), (far,)),  # not a creation
+    ]
+    ids = landmark_majority_ids(log)
+    assert creation_causes(log, ids) == {
+        "new": 4,
+        "far": 1,
+        "gated": 1,
+        "rejected": 1,
+        "accepted": 1,
+    }
+    # a detection that found a beam without range error (inf) is a rejection too
+    inf = d(9, 0, 9, "created", 9, 1, (1,), ((0, "converged", float("inf"), nan, False),))
+    assert creation_causes([*log, inf], ids)["rejected"] == 2
+
+
 def test_duplicate_fraction():
     assert duplicate_fraction(landmark_majority_ids(_decision_log())) == pytest.approx(1 - 2 / 3)
     assert duplicate_fraction([0, 1, 2, 3]) == 0.0
@@ -426,6 +456,9 @@ def test_evaluate_end_to_end_is_deterministic(episode, tmp_path, capsys):
     assert 0.0 <= seed["duplicate_fraction"] < 1.0
     assert seed["association_precision"] <= seed["compound_precision"] <= 1.0
     assert "cmp P" in printed
+    # every new landmark has one cause, and the first one of an obstacle is new
+    causes = [seed[f"created_{c}"] for c in ("new", "far", "gated", "rejected", "accepted")]
+    assert sum(causes) >= seed["landmarks"] >= 1 and seed["created_new"] >= 1
     assert seed["step_ms_median"] <= seed["step_ms_p95"]
     for key in REQUIRED_KEYS - {"world", "preset"}:
         assert metrics["mean"][key] == pytest.approx(seed[key]), key  # one seed

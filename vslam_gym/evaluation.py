@@ -53,6 +53,7 @@ from vslam_gym.slam.motion import increments_between, motion_update, odometry_no
 
 __all__ = [
     "ASSOCIATION_OUTCOMES",
+    "CREATION_CAUSES",
     "DecisionRecord",
     "EpisodeLog",
     "SeedsError",
@@ -64,6 +65,7 @@ __all__ = [
     "chi2_interval",
     "cmd_evaluate",
     "compound_precision",
+    "creation_causes",
     "duplicate_fraction",
     "episode_metrics",
     "evaluate",
@@ -123,6 +125,11 @@ MAP_OUTCOMES = ("created", "updated")
 OBSTACLE_SHARE = 0.1
 """An obstacle hit by at least this fraction of a set's hitting beams is one of the set's
 obstacles (:attr:`DecisionRecord.obstacles`, :func:`compound_precision`)."""
+CREATION_CAUSES = ("new", "far", "gated", "rejected", "accepted")
+"""Why a set made a new landmark (:func:`creation_causes`), by what became of the
+candidates that model the set's own obstacle: none was a candidate (``"new"``), or the
+one that came closest to an association was not aligned (``"far"``), had its ICP result
+gated, had its detection test (or the object-beam test) fail, or was accepted."""
 TIMING_KEYS = ("step_ms_median", "step_ms_p95", "step_ms_mean", "wall_s")
 """Metrics that measure time (they differ between identical runs)."""
 
@@ -150,6 +157,8 @@ class DecisionRecord:
         majority_id: the obstacle id hit by most of the set's beams (:func:`majority_id`).
         obstacles: the ids hit by at least :data:`OBSTACLE_SHARE` of the set's hitting
             beams, most hit first (:func:`set_obstacles`); empty when not recorded.
+        candidates: the landmarks tried (``SetDecision.candidates``: ``(id, icp_reason,
+            mean_d2, var_d2, accepted)``); empty when not recorded.
     """
 
     step: int
@@ -159,6 +168,7 @@ class DecisionRecord:
     landmark: int
     majority_id: int
     obstacles: tuple[int, ...] = ()
+    candidates: tuple[tuple[int, str, float, float, bool], ...] = ()
 
 
 @dataclass
@@ -338,6 +348,7 @@ def run_episode(
                     d.landmark,
                     majority_id(hit_ids[d.first : d.last + 1]),
                     set_obstacles(hit_ids[d.first : d.last + 1]),
+                    d.candidates,
                 )
                 for d in belief.decisions
             )
@@ -648,6 +659,41 @@ def compound_precision(
     return association_precision(decisions, landmark_ids, also=made_of)
 
 
+def creation_causes(
+    decisions: Iterable[DecisionRecord], landmark_ids: Mapping[int, int]
+) -> dict[str, int]:
+    """Why each new landmark was made: counts by :data:`CREATION_CAUSES` (a diagnostic).
+
+    For every ``"created"`` decision, the candidates whose landmark models the set's own
+    majority obstacle (``landmark_ids``, :func:`landmark_majority_ids`) are those the
+    new landmark duplicates. ``"new"``: none (or the set has no majority obstacle);
+    otherwise the furthest any of them got: ``"accepted"`` (the detection test passed;
+    another rule made the landmark), ``"rejected"`` (aligned and tested, the detection
+    or object-beam test failed), ``"gated"`` (the ICP result failed the plausibility
+    gate) or ``"far"`` (near the set's centroid but not aligned). Decisions recorded
+    without candidates count as ``"new"``.
+    """
+    rank = {"far": 1, "gated": 2, "rejected": 3, "accepted": 4}
+    counts = dict.fromkeys(CREATION_CAUSES, 0)
+    for d in decisions:
+        if d.outcome != "created":
+            continue
+        best = "new"
+        for lm, reason, mean_d2, _, accepted in d.candidates:
+            if d.majority_id == NO_HIT or landmark_ids.get(lm, NO_HIT) != d.majority_id:
+                continue
+            if accepted:
+                cause = "accepted"
+            elif reason in ("far", "gated"):
+                cause = reason
+            else:
+                cause = "gated" if math.isnan(mean_d2) else "rejected"
+            if rank[cause] > rank.get(best, 0):
+                best = cause
+        counts[best] += 1
+    return counts
+
+
 def duplicate_fraction(landmark_ids: Mapping[int, int] | Sequence[int]) -> float:
     """``1 - (distinct obstacles among the landmarks' ids) / landmarks``.
 
@@ -695,6 +741,9 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     ``landmarks`` (final count),
     ``obstacles_mapped`` (distinct true obstacles among them), ``obstacles``,
     ``landmarks_per_obstacle`` (landmarks / obstacles mapped), ``duplicate_fraction``;
+    ``created_new``, ``created_far``, ``created_gated``, ``created_rejected``,
+    ``created_accepted`` (the new landmarks by :func:`creation_causes`, a diagnostic of
+    the duplicates);
     ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``);
     ``step_ms_median``, ``step_ms_p95``, ``step_ms_mean`` [ms] (the mean is what a
     throughput sees when a motion filter makes most steps cheap); ``wall_s`` [s].
@@ -711,6 +760,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     update_precision, updates = association_precision(log.decisions, ids, ("updated",))
     rejected_precision, rejected = association_precision(log.decisions, ids, ("rejected",))
     compound, _ = compound_precision(log.decisions, ids)
+    causes = creation_causes(log.decisions, ids)
     median, p95 = timing_summary(log.step_ms)
     out: dict[str, Any] = {
         "world": log.world_name,
@@ -746,6 +796,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
             "obstacles": len(log.world.obstacles),
             "landmarks_per_obstacle": len(final.landmarks) / mapped if mapped else math.nan,
             "duplicate_fraction": duplicate_fraction(final_ids),
+            **{f"created_{cause}": count for cause, count in causes.items()},
             "loop_closures": log.loop_closures,
             "step_ms_median": median,
             "step_ms_p95": p95,
