@@ -314,8 +314,8 @@ class FilterConfig:
             residuals plus a prior on the aligned pose: the predicted pose with the
             pose covariance plus ``icp_prior_sigma_floor`` squared on the diagonal,
             weighted as if each point's residual had this standard deviation [m]
-            (``IcpConfig``-independent; :func:`~vslam_gym.slam.icp.align_many`'s
-            ``prior_weight``). The thesis's ICP has no prior: a set that sees a wall
+            (the ``prior_weight`` of :func:`~vslam_gym.slam.icp.align_many`). The
+            thesis's ICP has no prior: a set that sees a wall
             slides along it, and one that sees more than a partial model holds is
             pulled off it (``house`` seed 0: more than half of the alignments end
             beyond the plausibility gate, many metres and up to 1.5 rad from a
@@ -323,8 +323,8 @@ class FilterConfig:
             gated landmark of the same obstacle). 0 (the thesis): no prior. Measured at
             0.03 m with floors of 0, (0.05, 0.05, 0.02) and the gate's (0.2, 0.2,
             0.1) (``vslam-gym evaluate``, seeds 0-9, ``house`` 0-19, 2026-11-26):
-            fewer landmarks (``house`` 165 -> 128-141, ``curved`` 111 -> 53) and
-            ``house`` steps about a fifth shorter, ``small`` and (with the gate's floor)
+            fewer landmarks (``house`` 165 -> 128-141, ``curved`` 111 -> 53), half the
+            ICP iterations, ``small`` and (with the gate's floor)
             ``curved`` better, but position ATE worse on ``single_landmark`` (0.176 ->
             0.227-0.316 m) and ``house`` (0.208 -> 0.267-0.275 m): not the default. In
             the ``fast`` preset at 0.03 m with the gate's floor (docs/measurements.md,
