@@ -673,7 +673,7 @@ def creation_causes(
     gate) or ``"far"`` (near the set's centroid but not aligned). Decisions recorded
     without candidates count as ``"new"``.
     """
-    rank = {"far": 1, "gated": 2, "rejected": 3, "accepted": 4}
+    rank = {cause: i for i, cause in enumerate(CREATION_CAUSES)}  # how far it got
     counts = dict.fromkeys(CREATION_CAUSES, 0)
     for d in decisions:
         if d.outcome != "created":
@@ -688,7 +688,7 @@ def creation_causes(
                 cause = reason
             else:
                 cause = "gated" if math.isnan(mean_d2) else "rejected"
-            if rank[cause] > rank.get(best, 0):
+            if rank[cause] > rank[best]:
                 best = cause
         counts[best] += 1
     return counts

@@ -1062,20 +1062,10 @@ def _align_batch(
     frozen = np.zeros(p, dtype=bool)  # the association is frozen (same lines, same points)
     rows = np.array([k for k in range(p) if sets[k].shape[0] > 0], dtype=np.intp)
     finished: dict[int, IcpResult] = {}
+    inputs = (sets, lines, unknowns, bounds, prior)
     if 0 < rows.size <= _SEQUENTIAL_AT_MOST:
         finished = {
-            r: _align(
-                sets[r],
-                unknowns[r],
-                lines[r],
-                pose0,
-                config,
-                max_range,
-                half_fov,
-                bounds[r],
-                prior=prior,
-            )
-            for r in rows.tolist()
+            r: _align_one(r, inputs, pose0, config, max_range, half_fov) for r in rows.tolist()
         }
     elif rows.size:
         finished = _iterate(
@@ -1086,7 +1076,7 @@ def _align_batch(
             config,
             max_range,
             half_fov,
-            (sets, lines, unknowns, bounds, prior),
+            inputs,
         )
     # Report the transform angle in [-pi, pi); the pose heading is th0 + t_f,theta,
     # continuous with the prior (pose - prior is the correction).
@@ -1106,6 +1096,17 @@ def _align_batch(
         )
         for k in range(p)
     ]
+
+
+def _align_one(r, inputs, pose0, config, max_range, half_fov, resume=None) -> IcpResult:
+    """:func:`_align` of alignment ``r`` of a batch, from the start or from ``resume``.
+
+    ``inputs``: the batch's ``(sets, lines, unknowns, bounds, prior)``.
+    """
+    sets, lines, unknowns, bounds, prior = inputs
+    return _align(
+        sets[r], unknowns[r], lines[r], pose0, config, max_range, half_fov, bounds[r], resume, prior
+    )
 
 
 class _Stopper:
@@ -1131,7 +1132,7 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
     Returns the results of the alignments finished by :func:`_align`, by index.
     """
     px, py, pth, tfx, tfy, tfth, iterations, n_used, rms, frozen = state
-    sets, lines, unknowns, bounds, prior = inputs
+    bounds, prior = inputs[3:]
     x0, y0, th0 = (float(v) for v in pose0)
     finished: dict[int, IcpResult] = {}
     p = px.size
@@ -1159,18 +1160,7 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
                     (batch.frozen_j[pts], batch.frozen_keep[pts]) if frozen[r] else None,
                     None if watches is None else watches[r],
                 )
-                finished[r] = _align(
-                    sets[r],
-                    unknowns[r],
-                    lines[r],
-                    pose0,
-                    config,
-                    max_range,
-                    half_fov,
-                    bounds[r],
-                    progress,
-                    prior,
-                )
+                finished[r] = _align_one(r, inputs, pose0, config, max_range, half_fov, progress)
             return finished
         running = np.ones(act.size, dtype=bool)
         stop = _Stopper(act, running, reasons)
