@@ -722,3 +722,29 @@ def test_step_time_parts_are_non_negative_and_within_the_step():
     for b in skipped:
         assert b.step_ms_parts["landmarks"] == 0.0 == b.step_ms_parts["loop_closure"]
         assert b.step_ms_parts["motion"] > 0.0
+
+
+def test_single_line_min_beams_updates_with_one_long_object_line():
+    from collections import Counter
+
+    from vslam_gym.evaluation import run_episode
+
+    # On single_landmark seed 4 the set at the edge of the field of view covers one long
+    # face of the landmark for about 20 steps: matched, but only "associated" (one
+    # object line) by the thesis's rule.
+    def outcomes(**extra):
+        log = run_episode("single_landmark", 4, overrides={"filter": extra}, max_steps=110)
+        return Counter(d.outcome for d in log.decisions), log
+
+    plain, _ = outcomes()
+    long_line, log = outcomes(single_line_min_beams=10)
+    assert plain["associated"] >= 10
+    assert long_line["associated"] < plain["associated"] / 4
+    assert long_line["updated"] > plain["updated"] + plain["associated"] / 2
+    for cov in log.slam_covs:
+        assert np.linalg.eigvalsh(cov).min() > 0
+    # a threshold no line reaches changes nothing
+    never, _ = outcomes(single_line_min_beams=1000)
+    assert never == plain
+    with pytest.raises(ValueError, match="single_line_min_beams"):
+        SlamConfig.from_dict({"filter": {"single_line_min_beams": -1}})

@@ -304,6 +304,24 @@ class FilterConfig:
         min_object_lines: an association updates the map only when at least this many
             object lines each get ``min_beams_per_object_line`` beams (thesis: 2 and 2).
         min_beams_per_object_line: see ``min_object_lines``.
+        single_line_min_beams: when > 0, an association with fewer than
+            ``min_object_lines`` such lines still updates the map when one object line
+            gets at least this many beams: a long line fixes the heading and the
+            distance to it, though not the position along it. On ``single_landmark``
+            the set at the edge of the field of view often covers one long face of the
+            object for 20-30 steps, "associated" but not updated, while the heading
+            drifts with the odometry. 0 (the thesis): off. Measured (session 21,
+            ``vslam-gym evaluate --seeds 0-9``, ``house`` 0-19, paired t; 6 / 10 / 15
+            / 20 beams): at 10 the position ATE single_landmark / small / curved /
+            house 0.176 / 0.095 / 0.103 / 0.208 -> 0.132 / 0.092 / 0.089 / 0.211 m
+            (t -2.1 / -1.2 / -2.2 / +0.2), in a second round-off sample 0.176 / 0.096 /
+            0.108 / 0.209 -> 0.132 / 0.095 / 0.097 / 0.184 m, with a higher mean pose
+            NEES on ``house`` (384 -> 490, 333 -> 409); but the ``frontier`` agent on
+            the 20 held-out random worlds mapped worse (coverage 0.327 -> 0.308,
+            position ATE 0.109 -> 0.231 m, one world diverging to 2.1 m; 0.132 m
+            without it), and the ``logs`` preset measured mixed (Intel better, the
+            logged ACES run worse). Not the default (docs/measurements.md, "Updates
+            from one long object line").
         icp_max_pose_mahalanobis: an ICP result whose pose is further than this from the
             predicted pose (Mahalanobis distance, 3 dof, with ``icp_gate_sigma_floor``
             added to the covariance) fails the plausibility gate. Not a thesis value
@@ -805,6 +823,7 @@ class FilterConfig:
     psi_thres_deg: float = 30.0
     min_object_lines: int = 2
     min_beams_per_object_line: int = 2
+    single_line_min_beams: int = 0
     icp_max_pose_mahalanobis: float = 3.0
     icp_gate_sigma_floor: tuple[float, float, float] = (0.2, 0.2, 0.1)
     icp_gate_fallback: bool = False
@@ -935,6 +954,7 @@ class FilterConfig:
             ("loop_cooldown", 0),
             ("loop_track_hypotheses", 0),
             ("loop_min_points", 3),
+            ("single_line_min_beams", 0),
         ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < minimum:

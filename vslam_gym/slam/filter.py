@@ -1066,7 +1066,10 @@ class VertexSLAM:
                 line = det.association.line
                 obj = model.u[line] <= self.config.model.unknown_threshold
                 counts = np.bincount(line[obj], minlength=model.n_lines)
-                enough = int(np.sum(counts >= self.config.filter.min_beams_per_object_line))
+                cfg = self.config.filter
+                enough = int(np.sum(counts >= cfg.min_beams_per_object_line))
+                if 0 < cfg.single_line_min_beams <= counts.max(initial=0):
+                    enough = max(enough, cfg.min_object_lines)
                 best_score = score
                 best = _Association(
                     work.first,
@@ -1074,7 +1077,7 @@ class VertexSLAM:
                     lm,
                     test_pose.copy(),
                     (),
-                    enough >= self.config.filter.min_object_lines,
+                    enough >= cfg.min_object_lines,
                     detection=det,
                 )
         done = tuple(t for t in tried if t is not None)
