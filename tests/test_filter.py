@@ -138,6 +138,28 @@ def test_config_from_dict_and_presets():
 # ----------------------------------------------------------------- cached map data
 
 
+@pytest.mark.parametrize(
+    "section, name",
+    [
+        ("filter", "min_set_beams"),
+        ("filter", "min_object_lines"),
+        ("filter", "min_beams_per_object_line"),
+        ("filter", "unknown_chain_max_vertices"),
+        ("model", "min_beams_per_line"),
+        ("model", "artificial_outer_offset"),
+        ("model", "boundary_window"),
+        ("icp", "max_iterations"),
+        ("icp", "cycle_returns"),
+        ("matcher", "coarse_keep"),
+        ("matcher", "max_hypotheses"),
+    ],
+)
+@pytest.mark.parametrize("bad", [-1, 2.5, True, float("nan")])
+def test_integer_settings_reject_non_integers_and_values_below_their_minimum(section, name, bad):
+    with pytest.raises(ValueError, match=f"{name} must be an integer >= "):
+        SlamConfig.from_dict({section: {name: bad}})
+
+
 def test_cached_models_radii_and_median_distances_match_plain_computations():
     slam, _, _, _ = run(SlamConfig(), steps=40)
     assert len(slam._landmarks) >= 3

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import numbers
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
@@ -38,3 +39,18 @@ def dataclass_from_dict(cls: type[T], data: Mapping[str, Any], where: str | None
     names = [f.name for f in dataclasses.fields(cls) if f.init]  # type: ignore[arg-type]
     check_keys(data.keys(), names, where or cls.__name__)
     return cls(**dict(data))
+
+
+def check_integers(owner: Any, minimums: Mapping[str, int]) -> None:
+    """Raise ``ValueError`` unless each named field of ``owner`` is an integer >= its minimum.
+
+    ``minimums`` maps field names to their smallest allowed value. Booleans and
+    non-integral numbers (``1.5``, NaN) are rejected; the message names the class, the
+    field and the value.
+    """
+    for name, minimum in minimums.items():
+        value = getattr(owner, name)
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+            raise ValueError(
+                f"{type(owner).__name__}.{name} must be an integer >= {minimum}, got {value!r}"
+            )

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam_gym.config_utils import dataclass_from_dict
+from vslam_gym.config_utils import check_integers, dataclass_from_dict
 
 LINEARIZATIONS = ("ut", "jacobian")
 PREALIGN_MODES = ("none", "odometry", "fuse")
@@ -211,14 +211,18 @@ class ModelConfig:
                 f"ModelConfig.linearization must be one of {LINEARIZATIONS}, "
                 f"got {self.linearization!r}"
             )
-        if self.min_group_size < 2:
-            raise ValueError("ModelConfig.min_group_size must be >= 2")
+        check_integers(
+            self,
+            {
+                "min_group_size": 2,
+                "artificial_outer_offset": 1,
+                "min_beams_per_line": 1,
+                "boundary_window": 0,
+                "continuation_beams": 1,
+            },
+        )
         if not 0.0 <= self.unknown_d_low < self.unknown_d_high:
             raise ValueError("ModelConfig needs 0 <= unknown_d_low < unknown_d_high")
-        if isinstance(self.continuation_beams, bool) or int(self.continuation_beams) < 1:
-            raise ValueError(
-                f"ModelConfig.continuation_beams must be >= 1, got {self.continuation_beams!r}"
-            )
         if not (np.isfinite(self.continuation_gate) and self.continuation_gate >= 0.0):
             raise ValueError(
                 f"ModelConfig.continuation_gate must be finite and >= 0, "
@@ -948,19 +952,21 @@ class FilterConfig:
             value = getattr(self, name)
             if not isinstance(value, bool):
                 raise ValueError(f"FilterConfig.{name} must be a bool, got {value!r}")
-        for name, minimum in (
-            ("prune_idle_steps", 1),
-            ("loop_min_age", 1),
-            ("loop_cooldown", 0),
-            ("loop_track_hypotheses", 0),
-            ("loop_min_points", 3),
-            ("single_line_min_beams", 0),
-        ):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-                raise ValueError(
-                    f"FilterConfig.{name} must be an integer >= {minimum}, got {value!r}"
-                )
+        check_integers(
+            self,
+            {
+                "min_set_beams": 1,
+                "min_object_lines": 1,
+                "min_beams_per_object_line": 1,
+                "single_line_min_beams": 0,
+                "unknown_chain_max_vertices": 0,
+                "prune_idle_steps": 1,
+                "loop_min_age": 1,
+                "loop_cooldown": 0,
+                "loop_track_hypotheses": 0,
+                "loop_min_points": 3,
+            },
+        )
         if self.new_landmark not in NEW_LANDMARKS:
             raise ValueError(
                 f"FilterConfig.new_landmark must be one of {NEW_LANDMARKS}, got "

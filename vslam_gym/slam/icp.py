@@ -46,6 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vslam_gym.config_utils import check_integers
 from vslam_gym.slam.geometry import check_pose, stack_last, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 
@@ -137,10 +138,7 @@ class IcpConfig:
     max_correspondence_distance: float = math.inf
 
     def __post_init__(self) -> None:
-        if isinstance(self.max_iterations, bool) or int(self.max_iterations) < 1:
-            raise ValueError(f"IcpConfig.max_iterations must be >= 1, got {self.max_iterations}")
-        if isinstance(self.min_points, bool) or int(self.min_points) < 2:
-            raise ValueError(f"IcpConfig.min_points must be >= 2, got {self.min_points}")
+        check_integers(self, {"max_iterations": 1, "min_points": 2, "cycle_returns": 0})
         for name in ("tol_translation", "tol_rotation"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -151,8 +149,6 @@ class IcpConfig:
             )
         if not (np.isfinite(self.max_condition) and self.max_condition > 1.0):
             raise ValueError(f"IcpConfig.max_condition must be > 1, got {self.max_condition}")
-        if isinstance(self.cycle_returns, bool) or int(self.cycle_returns) < 0:
-            raise ValueError(f"IcpConfig.cycle_returns must be >= 0, got {self.cycle_returns}")
         if not self.max_correspondence_distance > 0.0:  # inf allowed; NaN fails
             raise ValueError(
                 "IcpConfig.max_correspondence_distance must be > 0 [m], got "

@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vslam_gym.config_utils import dataclass_from_dict
+from vslam_gym.config_utils import check_integers, dataclass_from_dict
 from vslam_gym.slam.geometry import check_pose, polar_to_cartesian, wrap_angle
 
 __all__ = [
@@ -209,24 +209,22 @@ class ScanMatcherConfig:
     sigma_floor: tuple[float, float, float] = (0.01, 0.01, 0.002)
 
     def __post_init__(self) -> None:
-        for name in (
-            "keyframes",
-            "coarse_stride",
-            "coarse_iterations",
-            "coarse_keep",
-            "refine_candidates",
-            "refine_iterations",
-            "revisit_max_keyframes",
-        ):
-            value = getattr(self, name)
-            if isinstance(value, bool) or int(value) < 1:
-                raise ValueError(f"ScanMatcherConfig.{name} must be an integer >= 1, got {value}")
-        for name in ("coarse_keep_after", "refine_keep_after"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value < 0:
-                raise ValueError(f"ScanMatcherConfig.{name} must be an integer >= 0, got {value}")
-        if int(self.max_hypotheses) < 1 or int(self.min_points) < 3:
-            raise ValueError("ScanMatcherConfig needs max_hypotheses >= 1 and min_points >= 3")
+        check_integers(
+            self,
+            {
+                "keyframes": 1,
+                "coarse_stride": 1,
+                "coarse_iterations": 1,
+                "coarse_keep": 1,
+                "refine_candidates": 1,
+                "refine_iterations": 1,
+                "revisit_max_keyframes": 1,
+                "coarse_keep_after": 0,
+                "refine_keep_after": 0,
+                "max_hypotheses": 1,
+                "min_points": 3,
+            },
+        )
         for name in (
             "normal_min_extent",
             "normal_max_radius",
