@@ -160,6 +160,26 @@ def test_integer_settings_reject_non_integers_and_values_below_their_minimum(sec
         SlamConfig.from_dict({section: {name: bad}})
 
 
+@pytest.mark.parametrize(
+    "section, name, bad",
+    [
+        ("filter", "segment_distance_gap", 0.0),
+        ("filter", "candidate_margin", -1.0),
+        ("filter", "icp_max_pose_mahalanobis", float("nan")),
+        ("filter", "observation_information_scale", 0.0),
+        ("model", "unknown_threshold", 1.5),
+        ("model", "detection_trim_fraction", 1.0),
+        ("model", "coarseness", float("inf")),
+        ("model", "coarseness_significance", True),
+    ],
+)
+def test_real_settings_outside_their_interval_are_rejected(section, name, bad):
+    with pytest.raises(ValueError, match=f"{name} must lie in "):
+        SlamConfig.from_dict({section: {name: bad}})
+    # the thesis's values at the ends of the intervals are accepted
+    assert SlamConfig.thesis().filter.icp_max_pose_mahalanobis == float("inf")
+
+
 def test_cached_models_radii_and_median_distances_match_plain_computations():
     slam, _, _, _ = run(SlamConfig(), steps=40)
     assert len(slam._landmarks) >= 3

@@ -54,3 +54,22 @@ def check_integers(owner: Any, minimums: Mapping[str, int]) -> None:
             raise ValueError(
                 f"{type(owner).__name__}.{name} must be an integer >= {minimum}, got {value!r}"
             )
+
+
+def check_intervals(owner: Any, intervals: Mapping[str, str]) -> None:
+    """Raise ``ValueError`` unless each named field of ``owner`` lies in its interval.
+
+    ``intervals`` maps field names to intervals written ``"[0, 1)"``, ``"(0, inf]"``
+    and the like (a square bracket includes its end). NaN lies in none, and booleans are
+    rejected; the message names the class, the field, the interval and the value.
+    """
+    for name, interval in intervals.items():
+        value = getattr(owner, name)
+        low, high = (float(end) for end in interval[1:-1].split(","))
+        inside = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        if inside:
+            above = value > low if interval[0] == "(" else value >= low
+            below = value < high if interval[-1] == ")" else value <= high
+            inside = bool(above and below)
+        if not inside:
+            raise ValueError(f"{type(owner).__name__}.{name} must lie in {interval}, got {value!r}")

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam_gym.config_utils import check_integers, dataclass_from_dict
+from vslam_gym.config_utils import check_integers, check_intervals, dataclass_from_dict
 
 LINEARIZATIONS = ("ut", "jacobian")
 PREALIGN_MODES = ("none", "odometry", "fuse")
@@ -211,6 +211,29 @@ class ModelConfig:
                 f"ModelConfig.linearization must be one of {LINEARIZATIONS}, "
                 f"got {self.linearization!r}"
             )
+        check_intervals(
+            self,
+            {
+                "ut_beta": "(-inf, inf)",
+                "ut_kappa": "(-inf, inf)",
+                "ut_alpha_squared_times_n": "(0, inf)",
+                "alpha_bic": "[0, inf)",
+                "grouping_mahalanobis": "(0, inf)",
+                "unknown_reference_resolution_deg": "(0, inf)",
+                "unknown_threshold": "[0, 1]",
+                "detection_gate_sigma": "(0, inf]",
+                "detection_mean_max": "(0, inf]",
+                "detection_var_max": "(0, inf]",
+                "detection_trim_fraction": "[0, 1)",
+                "vertex_match_mahalanobis": "(0, inf]",
+                "wrap_mahalanobis": "(0, inf]",
+                "parallel_sin_min": "[0, 1]",
+                "gm_mode_bracket_sigma": "(0, inf)",
+                "zero_range_vertex_sigma": "(0, inf)",
+                "coarseness": "[0, inf)",
+                "coarseness_significance": "(0, 1)",
+            },
+        )
         check_integers(
             self,
             {
@@ -952,6 +975,20 @@ class FilterConfig:
             value = getattr(self, name)
             if not isinstance(value, bool):
                 raise ValueError(f"FilterConfig.{name} must be a bool, got {value!r}")
+        check_intervals(
+            self,
+            {
+                "segment_angle_gap": "(0, inf)",
+                "segment_distance_gap": "(0, inf)",
+                "candidate_margin": "[0, inf]",
+                "psi_thres_deg": "[0, inf)",
+                "icp_max_pose_mahalanobis": "(0, inf]",
+                "candidate_max_median_distance": "(0, inf]",
+                "shape_sigma": "(0, inf)",
+                "unknown_chain_tolerance": "[0, inf)",
+                "observation_information_scale": "(0, inf)",
+            },
+        )
         check_integers(
             self,
             {
