@@ -118,7 +118,9 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     starts a fresh filter, with an empty map, at the world's start pose (this defines
     the map frame). The scan returned by ``reset`` is in the observation; the filter
     maps it only with ``map_reset_scan=True`` (that costs one SLAM step in ``reset``;
-    by default the first mapped scan is the first step's, 0.1 s later).
+    by default the first mapped scan is the first step's, 0.1 s later; mapping the
+    reset scan measured no better, docs/measurements.md, "Mapping the scan at the
+    start pose").
 
     ## Episode End
 
