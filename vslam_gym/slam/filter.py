@@ -233,6 +233,11 @@ class SlamConfig:
                 # 0.674-0.676 -> 0.680 m, ACES 0.936-0.953 -> 0.952-0.953 m; 6-9 % less
                 # time per scan. 3 (9 units) lost ACES: seeds 0-19 1.50 m, logged 1.04 m.
                 icp_stop_beyond_gate=10.0,
+                # Measured level or mixed here (2026-11-26, session 21, 0 -> 0.8): Intel
+                # logged 0.680 -> 0.680 m, synthetic seeds 0-19 0.483 -> 0.492 m; ACES
+                # logged 0.953 -> 0.949 m (final error 0.069 -> 0.435 m), synthetic
+                # 1.281 -> 1.280 m.
+                loop_prior_rival=0.0,
             ),
             # No freeze_on_cycle: measured no better here (full logs, seeds 0-4, position
             # ATE mean: Intel 0.61 -> 0.59 m, ACES 1.36 -> 1.44 m; step time unchanged).
@@ -286,6 +291,8 @@ class SlamConfig:
                 # random worlds level (coverage 0.274 -> 0.281, ATE 0.153 -> 0.140 m).
                 icp_prior_point_sigma=0.03,
                 icp_prior_sigma_floor=(0.2, 0.2, 0.1),
+                # Not measured with this preset yet (session 21): off, as before.
+                loop_prior_rival=0.0,
             )
         )
 
@@ -850,6 +857,7 @@ class VertexSLAM:
             max_distance_start=cfg.loop_max_distance_start,
             max_distance_mid=cfg.loop_max_distance_mid,
             min_points=cfg.loop_min_points,
+            prior_rival=cfg.loop_prior_rival,
         )
 
     def _close_loop(self, points: np.ndarray) -> bool:

@@ -38,7 +38,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vslam_gym.slam.geometry import wrap_angle
-from vslam_gym.slam.scan_matching import LocalMap, MatchResult, ScanMatcherConfig, match_scan
+from vslam_gym.slam.scan_matching import (
+    LocalMap,
+    MatchResult,
+    ScanMatcherConfig,
+    local_fit,
+    match_scan,
+)
 
 __all__ = ["LoopClosure", "LoopMatch", "RevisitKeyframes"]
 
@@ -217,6 +223,12 @@ class LoopClosure:
         max_distance_mid: ... and its distance [m] at the end of the coarse phase.
         min_points: fewest scan points (and inliers) of a revisit match (None:
             ``matcher``'s ``min_points``).
+        prior_rival: when > 0, the scan is also fitted locally at the predicted pose
+            (:func:`~vslam_gym.slam.scan_matching.local_fit`); a match further than the
+            matcher's ``ambiguity_translation`` or ``ambiguity_heading_deg`` from that fit
+            is declined as ambiguous when the fit's inlier fraction reaches this
+            fraction of the match's (an alias along a corridor: the earlier visit fits
+            where the belief already is). 0: off.
     """
 
     def __init__(
@@ -236,6 +248,7 @@ class LoopClosure:
         strong_inlier_fraction: float = 1.0,
         strong_max_mahalanobis: float = 0.0,
         min_points: int | None = None,
+        prior_rival: float = 0.0,
     ) -> None:
         config = replace(
             matcher,
@@ -264,6 +277,7 @@ class LoopClosure:
             else None
         )
         self._last_fused: int | None = None
+        self.prior_rival = float(prior_rival)
 
     def fused(self, now: int) -> None:
         """Record that the match of measurement update ``now`` was fused (cooldown)."""
@@ -304,7 +318,28 @@ class LoopClosure:
         distance = float(np.sqrt(max(m2, 0.0)))
         if not distance <= self._mahalanobis_limit(result.inlier_fraction):
             return None
+        if self.prior_rival > 0.0 and self._rivalled(points, pose, result):
+            return None
         return LoopMatch(result.pose.copy(), cov, result, distance)
+
+    def _rivalled(self, points: np.ndarray, pose: np.ndarray, result) -> bool:
+        """Whether the scan fits about as well near ``pose`` as at the distinct match.
+
+        Only a match that moves the pose by more than the matcher's
+        ``ambiguity_translation`` or ``ambiguity_heading_deg`` is checked (a few in a
+        hundred on the random worlds): the local fit costs about as much as the match.
+        """
+        config = self.keyframes.config
+        if not _distinct(pose, result.pose, config):
+            return False
+        rival = local_fit(points, self.keyframes, pose, config)
+        if rival is None:
+            return False
+        rival_pose, fraction = rival
+        return (
+            _distinct(rival_pose, result.pose, config)
+            and fraction >= self.prior_rival * result.inlier_fraction
+        )
 
     def _mahalanobis_limit(self, inlier_fraction: float) -> float:
         """The largest Mahalanobis distance a match with ``inlier_fraction`` may have."""
@@ -347,3 +382,10 @@ class LoopClosure:
         ``normals``: as :meth:`LocalMap.add` (the matcher's configuration's ``normal_*``).
         """
         return self.keyframes.add_keyframe(points, pose, cov, now, normals)
+
+
+def _distinct(a: np.ndarray, b: np.ndarray, config: ScanMatcherConfig) -> bool:
+    """Whether poses ``a`` and ``b`` differ by more than the matcher's ambiguity steps."""
+    return float(np.hypot(*(a[:2] - b[:2]))) > config.ambiguity_translation or abs(
+        float(wrap_angle(a[2] - b[2]))
+    ) > np.deg2rad(config.ambiguity_heading_deg)

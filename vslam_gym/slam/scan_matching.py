@@ -44,6 +44,7 @@ __all__ = [
     "ScanMatcherConfig",
     "match_scan",
     "match_scan_why",
+    "local_fit",
     "scan_normals",
     "scan_points",
 ]
@@ -745,6 +746,33 @@ def match_scan(
         ValueError: malformed ``points``, ``prior`` or ``prior_cov``.
     """
     return match_scan_why(points, local_map, prior, prior_cov, config, use_prior)[0]
+
+
+def local_fit(
+    points: np.ndarray,
+    local_map: LocalMap,
+    pose: np.ndarray,
+    config: ScanMatcherConfig | None = None,
+) -> tuple[np.ndarray, float] | None:
+    """The scan aligned to the local map near ``pose`` only, and its inlier fraction.
+
+    The refinement of :func:`match_scan` alone (correspondences within
+    ``max_distance_mid`` shrinking to ``max_distance_end``, no heading hypotheses, no
+    prior): where the scan fits around the given pose, to compare a match found
+    elsewhere with. ``points``: ``(m, 2)`` lidar frame [m]; ``pose``: ``(3,)`` lidar pose
+    in the map frame. None when the map is empty.
+    """
+    config = config or local_map.config
+    pose = check_pose(pose)
+    reference = local_map.reference(pose)
+    if reference is None:
+        return None
+    points = np.asarray(points, dtype=float)
+    gates = np.linspace(config.max_distance_mid, config.max_distance_end, config.refine_iterations)
+    term = _Prior(pose, np.zeros((3, 3)), False)
+    fitted = _gauss_newton(pose[None, :], points, reference, term, gates, config)
+    _, fraction = _inliers(fitted, points, reference, config.max_distance_end, config)
+    return fitted[0].copy(), float(fraction[0])
 
 
 def match_scan_why(
