@@ -56,17 +56,19 @@ def test_revisit_keyframes_are_the_old_ones_near_the_position():
         RevisitKeyframes(ScanMatcherConfig(), min_age=30)  # radius 0: no old keyframes kept
 
 
+CLOSURE = dict(
+    radius=3.0,
+    min_age=50,
+    keyframe_distance=0.5,
+    keyframe_heading_deg=15.0,
+    min_inlier_fraction=0.4,
+    max_mahalanobis=6.0,
+)
+"""The ``LoopClosure`` arguments of the tests."""
+
+
 def _closure(**overrides):
-    args = dict(
-        radius=3.0,
-        min_age=50,
-        keyframe_distance=0.5,
-        keyframe_heading_deg=15.0,
-        min_inlier_fraction=0.4,
-        max_mahalanobis=6.0,
-    )
-    args.update(overrides)
-    loop = LoopClosure(ScanMatcherConfig(), **args)
+    loop = LoopClosure(ScanMatcherConfig(), **{**CLOSURE, **overrides})
     rng = np.random.default_rng(0)
     for i, x in enumerate(np.arange(0.0, 3.01, 0.5)):  # the first visit, stamps 0..6
         pose = np.array([x, -1.0, 0.1 * i])
@@ -341,16 +343,7 @@ def corridor_scan(pose):
 
 
 def _corridor_closure(prior_rival):
-    loop = LoopClosure(
-        ScanMatcherConfig(),
-        radius=3.0,
-        min_age=50,
-        keyframe_distance=0.5,
-        keyframe_heading_deg=15.0,
-        min_inlier_fraction=0.4,
-        max_mahalanobis=6.0,
-        prior_rival=prior_rival,
-    )
+    loop = LoopClosure(ScanMatcherConfig(), **CLOSURE, prior_rival=prior_rival)
     for i, x in enumerate(np.arange(4.0, 12.01, 0.5)):  # the first visit, stamps 0..16
         pose = np.array([x, 0.0, 0.0])
         loop.add(corridor_scan(pose), pose, 1e-6 * np.eye(3), i)
