@@ -322,7 +322,7 @@ class LoopClosure:
             return None
         return LoopMatch(result.pose.copy(), cov, result, distance)
 
-    def _rivalled(self, points: np.ndarray, pose: np.ndarray, result) -> bool:
+    def _rivalled(self, points: np.ndarray, pose: np.ndarray, result: MatchResult) -> bool:
         """Whether the scan fits about as well near ``pose`` as at the distinct match.
 
         Only a match that moves the pose by more than the matcher's

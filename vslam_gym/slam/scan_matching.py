@@ -42,9 +42,9 @@ __all__ = [
     "MatchResult",
     "Reference",
     "ScanMatcherConfig",
+    "local_fit",
     "match_scan",
     "match_scan_why",
-    "local_fit",
     "scan_normals",
     "scan_points",
 ]
