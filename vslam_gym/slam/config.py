@@ -805,26 +805,25 @@ class FilterConfig:
             and 2: ``house`` seeds 0-9 unchanged (final error 0.050 / 0.051 m), but on
             the random worlds (``frontier``, 20 worlds) no better: mean NEES 621 / 434,
             ATE 0.136 / 0.133 m against 528 and 0.115 m. 0 by default.
-        loop_prior_rival: when > 0, a revisit match is declined as ambiguous when the
-            scan, fitted locally at the predicted pose
-            (:func:`~vslam_gym.slam.scan_matching.local_fit`), ends at a distinct pose
-            (the matcher's ``ambiguity_translation`` or ``ambiguity_heading_deg``) with at
-            least this fraction of the match's inliers: an alias along a corridor or a
-            long wall, where the earlier visit fits where the belief already is. On the
-            random worlds 70 of the 81 revisit matches that moved the ``frontier``
-            agent's position by more than 0.3 m were such aliases (reported with 2 cm
-            standard deviations). A true drift correction has no such rival: the local
-            fit at the drifted prediction converges to the match or fits badly. Only a
-            match that moves the pose by more than those steps is checked (a few in a
-            hundred on the random worlds: no measurable time). 0: off (as before session
-            21; the ``logs`` and ``fast`` presets). Measured (session 21, 0 -> 0.8): the
-            ``frontier`` agent on held-out worlds 1000-1019 / 1020-1039, coverage 0.327
-            -> 0.318 / 0.304 -> 0.332, position ATE 0.109 -> 0.104 / 0.151 -> 0.088 m
-            (paired t -0.7 / -1.9), mean NEES 359 -> 439 / 807 -> 282; ``vslam-gym
-            evaluate`` (seeds 0-9, ``house`` 0-19) small, curved and ``house`` identical
-            to the last digit, single_landmark final error 0.185 -> 0.139 m (t -1.8),
-            ATE 0.176 -> 0.173 m. 0.8 by default (docs/measurements.md, "False revisit
-            matches along corridors").
+        loop_prior_rival: when > 0, a revisit match is declined as ambiguous when the scan,
+            fitted locally at the predicted pose
+            (:func:`~vslam_gym.slam.scan_matching.local_fit`), ends at a distinct pose (the
+            matcher's ``ambiguity_translation`` or ``ambiguity_heading_deg``) with at least
+            this fraction of the match's inliers: an alias along a corridor or a long wall,
+            where the earlier visit fits where the belief already is. On the random worlds
+            70 of the 81 revisit matches that moved the ``frontier`` agent's position by
+            more than 0.3 m were such aliases (reported with 2 cm standard deviations). A
+            true drift correction has no such rival: the local fit at the drifted prediction
+            converges to the match or fits badly. Only a match that moves the pose by more
+            than those steps is checked (a few in a hundred on the random worlds: no
+            measurable time). 0: off (as before session 21; the ``logs`` and ``fast``
+            presets, where it measured level or mixed). Measured (session 21, 0 -> 0.8): the
+            ``frontier`` agent on held-out worlds 1000-1019 / 1020-1039, coverage 0.327 ->
+            0.318 / 0.304 -> 0.332, position ATE 0.109 -> 0.104 / 0.151 -> 0.088 m (paired t
+            -0.7 / -1.9), mean NEES 359 -> 439 / 807 -> 282; ``vslam-gym evaluate`` (seeds
+            0-9, ``house`` 0-19) small, curved and ``house`` identical to the last digit,
+            single_landmark final error 0.185 -> 0.139 m (t -1.8), ATE 0.176 -> 0.173 m. 0.8
+            by default (docs/measurements.md, "False revisit matches along corridors").
         loop_strong_inlier_fraction: a revisit match with at least this fraction of
             the scan's points as inliers passes the Mahalanobis test up to
             ``loop_strong_max_mahalanobis`` instead of ``loop_max_mahalanobis``; in
