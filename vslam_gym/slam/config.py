@@ -932,65 +932,6 @@ class FilterConfig:
     def __post_init__(self) -> None:
         for name in ("icp_gate_sigma_floor", "loop_sigma_floor", "icp_prior_sigma_floor"):
             self._sigma_triple(name)
-        for name in (
-            "icp_retry_min_fraction",
-            "min_object_beam_fraction",
-            "loop_min_inlier_fraction",
-            "loop_strong_inlier_fraction",
-            "candidate_near_quantile",
-        ):
-            value = getattr(self, name)
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f"FilterConfig.{name} must lie in [0, 1], got {value!r}")
-        for name in (
-            "measurement_min_travel",
-            "measurement_min_turn",
-            "loop_keyframe_distance",
-            "loop_keyframe_heading_deg",
-            "candidate_near_sigma",
-        ):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"FilterConfig.{name} must be finite and >= 0, got {value!r}")
-        for name in (
-            "icp_stop_beyond_gate",
-            "icp_retry_correspondence_distance",
-            "icp_prior_point_sigma",
-            "detection_model_sigma",
-            "creation_overlap_distance",
-            "verify_heading_sigma",
-            "verify_position_sigma",
-            "prune_covered_distance",
-            "prune_merge_sigma",
-            "observation_model_sigma",
-            "observation_model_heading_sigma",
-            "creation_heading_model_error",
-            "loop_min_innovation",
-            "loop_strong_max_mahalanobis",
-            "candidate_max_near_distance",
-        ):
-            value = getattr(self, name)
-            if not value >= 0.0:  # NaN fails too
-                raise ValueError(f"FilterConfig.{name} must be >= 0, got {value!r}")
-        for name in (
-            "prune_merge_max_offset",
-            "reference_heading_sigma",
-            "loop_radius",
-            "loop_max_mahalanobis",
-            "loop_max_distance_start",
-            "loop_max_distance_mid",
-        ):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"FilterConfig.{name} must be finite and > 0, got {value!r}")
-        for name, interval, inside in (
-            ("segment_breakpoint_angle_deg", "[0, 90)", lambda v: 0.0 <= v < 90.0),
-            ("prune_covered_fraction", "(0, 1]", lambda v: 0.0 < v <= 1.0),
-            ("prune_merge_probability", "(0, 1)", lambda v: 0.0 < v < 1.0),
-        ):
-            value = getattr(self, name)
-            if not inside(value):  # NaN fails too
-                raise ValueError(f"FilterConfig.{name} must lie in {interval}, got {value!r}")
         for name in ("prune_merge", "loop_closure"):
             value = getattr(self, name)
             if not isinstance(value, bool):
@@ -998,6 +939,40 @@ class FilterConfig:
         check_intervals(
             self,
             {
+                "icp_retry_min_fraction": "[0, 1]",
+                "min_object_beam_fraction": "[0, 1]",
+                "loop_min_inlier_fraction": "[0, 1]",
+                "loop_strong_inlier_fraction": "[0, 1]",
+                "candidate_near_quantile": "[0, 1]",
+                "measurement_min_travel": "[0, inf)",
+                "measurement_min_turn": "[0, inf)",
+                "loop_keyframe_distance": "[0, inf)",
+                "loop_keyframe_heading_deg": "[0, inf)",
+                "candidate_near_sigma": "[0, inf)",
+                "icp_stop_beyond_gate": "[0, inf]",
+                "icp_retry_correspondence_distance": "[0, inf]",
+                "icp_prior_point_sigma": "[0, inf]",
+                "detection_model_sigma": "[0, inf]",
+                "creation_overlap_distance": "[0, inf]",
+                "verify_heading_sigma": "[0, inf]",
+                "verify_position_sigma": "[0, inf]",
+                "prune_covered_distance": "[0, inf]",
+                "prune_merge_sigma": "[0, inf]",
+                "observation_model_sigma": "[0, inf]",
+                "observation_model_heading_sigma": "[0, inf]",
+                "creation_heading_model_error": "[0, inf]",
+                "loop_min_innovation": "[0, inf]",
+                "loop_strong_max_mahalanobis": "[0, inf]",
+                "candidate_max_near_distance": "[0, inf]",
+                "prune_merge_max_offset": "(0, inf)",
+                "reference_heading_sigma": "(0, inf)",
+                "loop_radius": "(0, inf)",
+                "loop_max_mahalanobis": "(0, inf)",
+                "loop_max_distance_start": "(0, inf)",
+                "loop_max_distance_mid": "(0, inf)",
+                "segment_breakpoint_angle_deg": "[0, 90)",
+                "prune_covered_fraction": "(0, 1]",
+                "prune_merge_probability": "(0, 1)",
                 "segment_angle_gap": "(0, inf)",
                 "segment_distance_gap": "(0, inf)",
                 "candidate_margin": "[0, inf]",

@@ -1151,17 +1151,20 @@ class VertexSLAM:
         on_object = det.association.u <= self.config.model.unknown_threshold
         return bool(np.mean(on_object) >= fraction)
 
+    def _floored_pose_covariance(self, floor: tuple[float, float, float]) -> np.ndarray:
+        """The pose covariance plus ``floor`` (x [m], y [m], theta [rad]) squared, diagonal."""
+        return self._sigma[:3, :3] + np.diag(np.square(floor))
+
     def _gate_covariance(self) -> np.ndarray:
         """The pose covariance plus ``icp_gate_sigma_floor`` squared on the diagonal."""
-        floor = np.square(self.config.filter.icp_gate_sigma_floor)
-        return self._sigma[:3, :3] + np.diag(floor)
+        return self._floored_pose_covariance(self.config.filter.icp_gate_sigma_floor)
 
     def _icp_prior_weight(self) -> np.ndarray | None:
         """The ICP pose prior's weight (``FilterConfig.icp_prior_point_sigma``), or None."""
         cfg = self.config.filter
         if cfg.icp_prior_point_sigma <= 0.0:
             return None
-        cov = self._sigma[:3, :3] + np.diag(np.square(cfg.icp_prior_sigma_floor))
+        cov = self._floored_pose_covariance(cfg.icp_prior_sigma_floor)
         weight = cfg.icp_prior_point_sigma**2 * np.linalg.inv(cov)
         return 0.5 * (weight + weight.T)
 

@@ -42,6 +42,7 @@ from vslam_gym.slam.scan_matching import (
     LocalMap,
     MatchResult,
     ScanMatcherConfig,
+    distinct_poses,
     local_fit,
     match_scan,
 )
@@ -330,14 +331,14 @@ class LoopClosure:
         hundred on the random worlds): the local fit costs about as much as the match.
         """
         config = self.keyframes.config
-        if not _distinct(pose, result.pose, config):
+        if not distinct_poses(pose, result.pose, config):
             return False
         rival = local_fit(points, self.keyframes, pose, config)
         if rival is None:
             return False
         rival_pose, fraction = rival
         return (
-            _distinct(rival_pose, result.pose, config)
+            bool(distinct_poses(rival_pose, result.pose, config))
             and fraction >= self.prior_rival * result.inlier_fraction
         )
 
@@ -382,10 +383,3 @@ class LoopClosure:
         ``normals``: as :meth:`LocalMap.add` (the matcher's configuration's ``normal_*``).
         """
         return self.keyframes.add_keyframe(points, pose, cov, now, normals)
-
-
-def _distinct(a: np.ndarray, b: np.ndarray, config: ScanMatcherConfig) -> bool:
-    """Whether poses ``a`` and ``b`` differ by more than the matcher's ambiguity steps."""
-    return float(np.hypot(*(a[:2] - b[:2]))) > config.ambiguity_translation or abs(
-        float(wrap_angle(a[2] - b[2]))
-    ) > np.deg2rad(config.ambiguity_heading_deg)

@@ -42,6 +42,7 @@ __all__ = [
     "MatchResult",
     "Reference",
     "ScanMatcherConfig",
+    "distinct_poses",
     "local_fit",
     "match_scan",
     "match_scan_why",
@@ -748,6 +749,19 @@ def match_scan(
     return match_scan_why(points, local_map, prior, prior_cov, config, use_prior)[0]
 
 
+def distinct_poses(poses: np.ndarray, pose: np.ndarray, config: ScanMatcherConfig) -> np.ndarray:
+    """Which of ``poses`` ``(..., 3)`` differ from ``pose`` ``(3,)`` beyond the ambiguity steps.
+
+    More than ``config.ambiguity_translation`` [m] apart, or headings more than
+    ``config.ambiguity_heading_deg`` apart: the matcher's test of a rival match.
+    """
+    d_trans = np.hypot(poses[..., 0] - pose[0], poses[..., 1] - pose[1])
+    d_head = np.abs(wrap_angle(poses[..., 2] - pose[2]))
+    return (d_trans > config.ambiguity_translation) | (
+        d_head > np.deg2rad(config.ambiguity_heading_deg)
+    )
+
+
 def local_fit(
     points: np.ndarray,
     local_map: LocalMap,
@@ -842,11 +856,7 @@ def match_scan_why(
         or fraction[best] * points.shape[0] < config.min_points
     ):
         return None, "few_inliers"
-    d_trans = np.hypot(*(poses[:, :2] - poses[best, :2]).T)
-    d_head = np.abs(wrap_angle(poses[:, 2] - poses[best, 2]))
-    distinct = (d_trans > config.ambiguity_translation) | (
-        d_head > np.deg2rad(config.ambiguity_heading_deg)
-    )
+    distinct = distinct_poses(poses, poses[best], config)
     reason = "matched"
     rivals = fraction >= config.ambiguity_ratio * fraction[best]
     if np.any(distinct & rivals):
