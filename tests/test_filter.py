@@ -778,7 +778,7 @@ def test_single_line_min_beams_updates_with_one_long_object_line():
         log = run_episode("single_landmark", 4, overrides={"filter": extra}, max_steps=110)
         return Counter(d.outcome for d in log.decisions), log
 
-    plain, _ = outcomes()
+    plain, _ = outcomes(single_line_min_beams=0)  # the thesis's rule
     long_line, log = outcomes(single_line_min_beams=10)
     assert plain["associated"] >= 10
     assert long_line["associated"] < plain["associated"] / 4
@@ -790,3 +790,7 @@ def test_single_line_min_beams_updates_with_one_long_object_line():
     assert never == plain
     with pytest.raises(ValueError, match="single_line_min_beams"):
         SlamConfig.from_dict({"filter": {"single_line_min_beams": -1}})
+    # on by default; off in the thesis, logs and fast presets
+    assert SlamConfig().filter.single_line_min_beams == 10
+    for name in ("thesis", "logs", "fast"):
+        assert SlamConfig.preset(name).filter.single_line_min_beams == 0

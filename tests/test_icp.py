@@ -587,8 +587,11 @@ def test_batched_alignments_agree_with_one_at_a_time(cfg):
             points.append(set_points(scan_of(SHAPES[name], TRUE, rng), prior))
     models.append(models[0])  # an empty set ...
     points.append(np.zeros((0, 2)))
-    models.append(models[0])  # ... and one behind the model: no line faces it
-    points.append(np.array([[0.0, 9.0], [0.5, 9.2], [1.0, 9.4]]))
+    models.append(models[0])  # ... and one 9 m to the side, which runs off and loses
+    # its points. (Not one behind the model: that set converged on 3 points alone but
+    # lost them side by side on another CPU, as it does here with the points scaled by
+    # 1 + 1e-15; this one ends the same either way, both ways.)
+    points.append(np.array([[0.0, -9.0], [0.5, -9.2], [1.0, -9.4]]))
     if weight is not None:
         # A prior pulls that set onto the model, where its points lie at a vertex,
         # equidistant from two segments: a round-off tie decides their line.
@@ -607,9 +610,16 @@ def test_batched_alignments_agree_with_one_at_a_time(cfg):
             single.frozen,
         )
         # Sums in another order: a slowly converging step may fall below the tolerance
-        # one iteration apart (a step below it moves the points less than 1e-4 m).
-        assert abs(got.iterations - single.iterations) <= 1
-        atol = 1e-9 if got.iterations == single.iterations else icp_cfg.tol_translation
+        # one iteration apart (a step below it moves the points less than 1e-4 m). The
+        # thesis's point-to-point step converges slowly enough that round-off moves its
+        # stop by two iterations, or leaves 1e-6 m between two runs that stop together
+        # (seen on another CPU), and a step below the tolerance leaves up to r / (1 - r)
+        # of it still to go at a convergence rate r: for it, agreement within a few
+        # tolerances is all there is.
+        slow = not icp_cfg.point_to_line
+        assert abs(got.iterations - single.iterations) <= (2 if slow else 1)
+        exact = got.iterations == single.iterations and not slow
+        atol = 1e-9 if exact else (5.0 if slow else 1.0) * icp_cfg.tol_translation
         # (rtol: an alignment that runs away, e.g. to 1 km without centring, amplifies it)
         np.testing.assert_allclose(got.pose, single.pose, rtol=1e-6, atol=atol)
         np.testing.assert_allclose(got.transform, single.transform, rtol=1e-6, atol=atol)

@@ -154,21 +154,27 @@ def _merge_setup():
     slam, beliefs, _, _ = run(SlamConfig(), steps=40)
     victim, keeper = slam._landmarks[0], slam._landmarks[1]
     d = np.eye(2)
-    jv, _ = slam._object_vertex_moments(victim)
-    jk, _ = slam._object_vertex_moments(keeper)
+    jv, cv = slam._object_vertex_moments(victim)
+    jk, ck = slam._object_vertex_moments(keeper)
     h = np.zeros((2, slam._mu.size))
     h[:, victim.ref : victim.ref + 2], h[:, keeper.ref : keeper.ref + 2] = jv, -jk
-    return slam, victim, keeper, d, h
+    noise = slam.config.filter.prune_merge_sigma**2 * np.eye(2) + cv + ck
+    return slam, victim, keeper, d, h, noise
 
 
 def test_merge_is_a_gated_kalman_update_of_the_relative_position():
-    slam, victim, keeper, d, h = _merge_setup()
+    slam, victim, keeper, d, h, noise = _merge_setup()
     mu, sigma = slam._mu.copy(), slam._sigma.copy()
     offset = np.array([0.03, -0.02])
     assert slam._merge_duplicate(victim, keeper, TranslationFit(offset, d, np.zeros(1)))
     moved = h @ (slam._mu - mu)
-    # the relative position moves toward the measured offset, not beyond it
-    assert np.all(moved * offset > 0) and np.all(np.abs(moved) <= np.abs(offset) + 1e-12)
+    # the relative position moves by the Kalman gain's share of the measured offset:
+    # P (P + R)^-1 offset, toward it (positive along the whitened innovation), and the
+    # rest of the offset is R (P + R)^-1 offset
+    prior = h @ sigma @ h.T
+    whitened = np.linalg.solve(prior + noise, offset)
+    np.testing.assert_allclose(moved, prior @ whitened, rtol=1e-6, atol=1e-12)
+    assert moved @ whitened > 0 and offset @ whitened > moved @ whitened
     assert np.all(np.diag(h @ slam._sigma @ h.T) < np.diag(h @ sigma @ h.T))
     np.testing.assert_array_equal(slam._sigma, slam._sigma.T)
     assert np.linalg.eigvalsh(slam._sigma).min() > 0.0

@@ -347,8 +347,15 @@ class FilterConfig:
             the 20 held-out random worlds mapped worse (coverage 0.327 -> 0.308,
             position ATE 0.109 -> 0.231 m, one world diverging to 2.1 m; 0.132 m
             without it), and the ``logs`` preset measured mixed (Intel better, the
-            logged ACES run worse). Not the default (docs/measurements.md, "Updates
-            from one long object line").
+            logged ACES run worse). The explorer's divergences were false revisit
+            matches, which ``loop_prior_rival`` at 0.7 declines: together (session 22,
+            10 and 0.7 against the default of 0 and 0.8, two round-off samples; paired
+            t) the routes' position ATE went 0.173 / 0.098 / 0.101 / 0.229 -> 0.125 /
+            0.093 / 0.103 / 0.191 m and 0.173 / 0.099 / 0.110 / 0.260 -> 0.125 / 0.096
+            / 0.098 / 0.189 m (``house`` t -1.8 / -2.7), and the ``frontier`` agent's
+            on the 40 held-out worlds 1000-1039 0.099 -> 0.091 m at the same coverage
+            (0.312 -> 0.310). 10 by default; 0 in the ``thesis``, ``logs`` and ``fast``
+            presets (docs/measurements.md, "Updates from one long object line").
         icp_max_pose_mahalanobis: an ICP result whose pose is further than this from the
             predicted pose (Mahalanobis distance, 3 dof, with ``icp_gate_sigma_floor``
             added to the covariance) fails the plausibility gate. Not a thesis value
@@ -823,7 +830,9 @@ class FilterConfig:
             -0.7 / -1.9), mean NEES 359 -> 439 / 807 -> 282; ``vslam-gym evaluate`` (seeds
             0-9, ``house`` 0-19) small, curved and ``house`` identical to the last digit,
             single_landmark final error 0.185 -> 0.139 m (t -1.8), ATE 0.176 -> 0.173 m. 0.8
-            by default (docs/measurements.md, "False revisit matches along corridors").
+            by default then; 0.7 since session 22 (a rival with 0.72 of the match's inliers
+            let an alias 1.8 m along a wall through on a random world), together with
+            ``single_line_min_beams`` (measured there).
         loop_strong_inlier_fraction: a revisit match with at least this fraction of
             the scan's points as inliers passes the Mahalanobis test up to
             ``loop_strong_max_mahalanobis`` instead of ``loop_max_mahalanobis``; in
@@ -869,7 +878,7 @@ class FilterConfig:
     psi_thres_deg: float = 30.0
     min_object_lines: int = 2
     min_beams_per_object_line: int = 2
-    single_line_min_beams: int = 0
+    single_line_min_beams: int = 10
     icp_max_pose_mahalanobis: float = 3.0
     icp_gate_sigma_floor: tuple[float, float, float] = (0.2, 0.2, 0.1)
     icp_gate_fallback: bool = False
@@ -923,7 +932,7 @@ class FilterConfig:
     loop_min_innovation: float = 0.0
     loop_strong_inlier_fraction: float = 0.8
     loop_strong_max_mahalanobis: float = 12.0
-    loop_prior_rival: float = 0.8
+    loop_prior_rival: float = 0.7
     loop_correct_keyframes: str = "none"
     loop_max_distance_start: float = 2.0
     loop_max_distance_mid: float = 1.0
@@ -1038,9 +1047,10 @@ class FilterConfig:
         """The thesis's filter.
 
         No chain pruning, ICP plausibility gate, update verification, model-error terms,
-        loop closure, near-candidate or object-beam test.
+        loop closure, near-candidate or object-beam test, no update from one long line.
         """
         base: dict[str, Any] = dict(
+            single_line_min_beams=0,
             unknown_chain_max_vertices=0,
             candidate_max_median_distance=float("inf"),
             candidate_max_near_distance=float("inf"),

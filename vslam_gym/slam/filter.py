@@ -238,6 +238,10 @@ class SlamConfig:
                 # logged 0.953 -> 0.949 m (final error 0.069 -> 0.435 m), synthetic
                 # 1.281 -> 1.280 m.
                 loop_prior_rival=0.0,
+                # Measured mixed here (session 21, 0 -> 10): Intel logged 0.680 ->
+                # 0.660 m, synthetic seeds 0-19 0.483 -> 0.476 m; ACES logged 0.953 ->
+                # 1.060 m (final error 2.0 m), synthetic 1.281 -> 1.272 m.
+                single_line_min_beams=0,
             ),
             # No freeze_on_cycle: measured no better here (full logs, seeds 0-4, position
             # ATE mean: Intel 0.61 -> 0.59 m, ACES 1.36 -> 1.44 m; step time unchanged).
@@ -296,6 +300,9 @@ class SlamConfig:
                 # seeds 0-9 single_landmark final error 0.275 -> 0.210 m, the other
                 # routes identical.
                 loop_prior_rival=0.0,
+                # Not measured here (the default's since session 22, with the rival test
+                # that this preset keeps off).
+                single_line_min_beams=0,
             )
         )
 
