@@ -590,7 +590,7 @@ def test_batched_alignments_agree_with_one_at_a_time(cfg):
     models.append(models[0])  # ... and one 9 m to the side, which runs off and loses
     # its points. (Not one behind the model: that set converged on 3 points alone but
     # lost them side by side on another CPU, as it does here with the points scaled by
-    # 1 + 1e-15; this one ends the same either way, both ways.)
+    # 1 + 1e-15; this one ends the same alone and side by side, scaled or not.)
     points.append(np.array([[0.0, -9.0], [0.5, -9.2], [1.0, -9.4]]))
     if weight is not None:
         # A prior pulls that set onto the model, where its points lie at a vertex,

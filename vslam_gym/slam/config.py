@@ -353,9 +353,10 @@ class FilterConfig:
             t) the routes' position ATE went 0.173 / 0.098 / 0.101 / 0.229 -> 0.125 /
             0.093 / 0.103 / 0.191 m and 0.173 / 0.099 / 0.110 / 0.260 -> 0.125 / 0.096
             / 0.098 / 0.189 m (``house`` t -1.8 / -2.7), and the ``frontier`` agent's
-            on the 40 held-out worlds 1000-1039 0.099 -> 0.091 m at the same coverage
-            (0.312 -> 0.310). 10 by default; 0 in the ``thesis``, ``logs`` and ``fast``
-            presets (docs/measurements.md, "Updates from one long object line").
+            position ATE on the 40 held-out worlds 1000-1039 0.099 -> 0.091 m at the
+            same coverage (0.312 -> 0.310). 10 by default; 0 in the ``thesis``,
+            ``logs`` and ``fast`` presets (docs/measurements.md, "Updates from one long
+            object line").
         icp_max_pose_mahalanobis: an ICP result whose pose is further than this from the
             predicted pose (Mahalanobis distance, 3 dof, with ``icp_gate_sigma_floor``
             added to the covariance) fails the plausibility gate. Not a thesis value
@@ -1047,7 +1048,7 @@ class FilterConfig:
         """The thesis's filter.
 
         No chain pruning, ICP plausibility gate, update verification, model-error terms,
-        loop closure, near-candidate or object-beam test, no update from one long line.
+        loop closure, near-candidate or object-beam test, or update from one long line.
         """
         base: dict[str, Any] = dict(
             single_line_min_beams=0,
