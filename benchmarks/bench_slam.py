@@ -1,12 +1,17 @@
 """Per-step time of the SLAM filter along a world's route, for both presets.
 
-For each world and preset: one episode (``vslam_gym.evaluation.run_episode``) drives the
+For each world and preset: an episode (``vslam_gym.evaluation.run_episode``) drives the
 world's route with the route follower on the true pose and runs ``VertexSLAM`` every
 step; the filter's own wall time per step (``Belief.step_ms``: motion update,
 segmentation, association, map updates, new landmarks; not the simulation) is
 summarised as median, mean, 95th percentile and maximum, with the median of the last
 tenth of the steps (cost grows with the map) and the final landmark count. Under a motion
 filter (the ``fast`` preset) most steps skip the measurement update: compare the means.
+
+The episode runs ``--repeats`` times (the same results each time, the filter is
+deterministic), every world and preset once per round, so that a slow minute of a
+shared machine touches all of them alike; each figure is the median over the runs, and
+``range`` the lowest and highest per-run median.
 
 Targets: median <= 10 ms per step on ``house`` with the default preset. For reference,
 the thesis reported 1.8 s per step (its Python, its curved-object world of 21 steps).
@@ -17,7 +22,7 @@ printed: on a shared machine the times are only comparable at a similar load.
 Usage::
 
     python benchmarks/bench_slam.py [--worlds house small] [--presets default thesis fast]
-                                    [--seed 0] [--max-steps N]
+                                    [--seed 0] [--max-steps N] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -64,11 +69,26 @@ def bench(world: str, preset: str, seed: int, max_steps: int | None) -> dict[str
     }
 
 
+def summarise_runs(runs: list[dict[str, object]]) -> dict[str, object]:
+    """One row from repeated runs of a world and preset: each number the median over them.
+
+    ``range`` holds the lowest and highest per-run median step time [ms].
+    """
+    row = dict(runs[0])
+    for key, value in runs[0].items():
+        if isinstance(value, float):
+            row[key] = float(np.median([r[key] for r in runs]))
+    medians = [float(r["median"]) for r in runs]
+    row["range"] = (min(medians), max(medians))
+    row["vs_thesis"] = THESIS_STEP_MS / float(row["mean"])
+    return row
+
+
 def format_rows(rows: list[dict[str, object]]) -> str:
     """The result table, fixed width."""
     header = (
-        "world", "preset", "steps", "route", "med ms", "mean ms", "p95 ms", "max ms", "late ms",
-        "LMs", "filter s", "wall s", "target", "met", "x thesis",
+        "world", "preset", "steps", "route", "med ms", "range", "mean ms", "p95 ms", "max ms",
+        "late ms", "LMs", "filter s", "wall s", "target", "met", "x thesis",
     )  # fmt: skip
     lines = []
     for r in rows:
@@ -77,7 +97,8 @@ def format_rows(rows: list[dict[str, object]]) -> str:
         lines.append(
             (
                 r["world"], r["preset"], str(r["steps"]), r["route"], f"{r['median']:.1f}",
-                f"{r['mean']:.1f}", f"{r['p95']:.1f}", f"{r['max']:.1f}", f"{r['late']:.1f}",
+                "{:.1f}-{:.1f}".format(*r["range"]), f"{r['mean']:.1f}", f"{r['p95']:.1f}",
+                f"{r['max']:.1f}", f"{r['late']:.1f}",
                 str(r["landmarks"]),
                 f"{r['filter_s']:.1f}", f"{r['wall_s']:.1f}",
                 "-" if target is None else f"<= {target:g}", met, f"{r['vs_thesis']:.0f}x",
@@ -98,25 +119,30 @@ def main() -> None:
     parser.add_argument("--presets", nargs="+", default=["default", "thesis"])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-steps", type=int, default=None, help="default: whole route")
+    parser.add_argument("--repeats", type=int, default=3, help="runs of each episode, >= 1")
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
     print(f"machine: {machine_description()}")
     print(f"load average before: {load_average()}")
-    rows = []
-    for world in args.worlds:
-        for preset in args.presets:
-            rows.append(bench(world, preset, args.seed, args.max_steps))
-            r = rows[-1]
+    cases = [(world, preset) for world in args.worlds for preset in args.presets]
+    runs: dict[tuple[str, str], list[dict[str, object]]] = {case: [] for case in cases}
+    for round_ in range(args.repeats):
+        for world, preset in cases:
+            r = bench(world, preset, args.seed, args.max_steps)
+            runs[(world, preset)].append(r)
             print(
-                f"  {world}/{preset}: {r['steps']} steps, median {r['median']:.1f} ms "
-                f"(load {load_average()})",
+                f"  run {round_ + 1}/{args.repeats} {world}/{preset}: {r['steps']} steps, "
+                f"median {r['median']:.1f} ms (load {load_average()})",
                 flush=True,
             )
     print(f"load average after: {load_average()}")
     print(
-        f"SLAM step time [ms] per step, seed {args.seed}; 'late' = median of the last "
+        f"SLAM step time [ms] per step, seed {args.seed}, median over {args.repeats} run(s) "
+        f"('range': lowest-highest per-run median); 'late' = median of the last "
         f"{TAIL_FRACTION:.0%} of steps; 'x thesis' = {THESIS_STEP_MS / 1e3:g} s / mean"
     )
-    print(format_rows(rows))
+    print(format_rows([summarise_runs(runs[case]) for case in cases]))
 
 
 if __name__ == "__main__":
