@@ -794,3 +794,27 @@ def test_single_line_min_beams_updates_with_one_long_object_line():
     assert SlamConfig().filter.single_line_min_beams == 10
     for name in ("thesis", "logs", "fast"):
         assert SlamConfig.preset(name).filter.single_line_min_beams == 0
+
+
+def test_update_max_correction_m2_rejects_corrections_beyond_their_covariance():
+    def turned(limit, turn):
+        config = SlamConfig.from_dict({"filter": {"update_max_correction_m2": limit}})
+        return _turned_update(config, turn=turn)
+
+    # Odometry says "no motion" (heading sigma about 1 mrad): a 0.01 rad turn moves the
+    # heading as far as the update accounts for, a 0.05 rad one much further.
+    for turn in (0.0, 0.01):
+        plain, gated = turned(0.0, turn), turned(16.3, turn)
+        assert {d.outcome for d in gated.decisions} >= {"updated"}
+        np.testing.assert_array_equal(gated.pose, plain.pose)
+    plain, gated = turned(0.0, 0.05), turned(16.3, 0.05)
+    assert plain.pose[2] > 1e-3
+    outcomes = {d.outcome for d in gated.decisions}
+    assert "rejected" in outcomes and "updated" not in outcomes
+    np.testing.assert_allclose(gated.pose, np.zeros(3), atol=1e-12)  # left as predicted
+    assert np.linalg.eigvalsh(gated.pose_cov).min() > 0
+    # a limit no correction reaches changes nothing
+    np.testing.assert_array_equal(turned(1e9, 0.05).pose, plain.pose)
+    assert SlamConfig().filter.update_max_correction_m2 == 0.0
+    with pytest.raises(ValueError, match="update_max_correction_m2"):
+        SlamConfig.from_dict({"filter": {"update_max_correction_m2": -1.0}})

@@ -105,6 +105,12 @@ scans, synthetic seeds 0-1 and logged, with ``create_beside_candidates=False``
 1.96 2.04 -> 0.69 1.10 1.37."""
 
 
+CORRECTION_RANK_TOLERANCE = 1e-6
+"""Directions whose correction variance is below this times the largest are left out of
+:meth:`VertexSLAM._plausible_correction` (the update hardly informs them; round-off there
+would dominate the test)."""
+
+
 @dataclass(frozen=True)
 class SlamConfig:
     """Everything the estimator is configured with, in three typed parts.
@@ -1402,7 +1408,7 @@ class VertexSLAM:
             cond.covariance()  # p(v | r) must be proper before anything is committed
         except np.linalg.LinAlgError:
             return "failed"
-        if not self._verified(mu, assoc.pose):
+        if not self._verified(mu, assoc.pose) or not self._plausible_correction(mu, sigma):
             return "rejected"
         self._mu, self._sigma = mu, sigma
         lm.cond = cond
@@ -1481,6 +1487,28 @@ class VertexSLAM:
             if float(np.hypot(*(move - s * offset))) > cfg.verify_position_sigma * sigma:
                 return False
         return True
+
+    def _plausible_correction(self, mu: np.ndarray, sigma: np.ndarray) -> bool:
+        """Whether an update's pose correction is as large as its own covariance allows.
+
+        A linear-Gaussian update moves the pose mean by a correction whose covariance is
+        the prior pose covariance minus the posterior's; its squared Mahalanobis distance
+        under that difference (over the directions the update informs: eigenvalues
+        above ``CORRECTION_RANK_TOLERANCE`` times the largest) must be at most
+        ``FilterConfig.update_max_correction_m2`` (0: not tested).
+        """
+        limit = self.config.filter.update_max_correction_m2
+        if limit <= 0.0:
+            return True
+        d = mu[:3] - self._mu[:3]
+        d[2] = wrap_angle(d[2])
+        gain = self._sigma[:3, :3] - sigma[:3, :3]
+        w, v = np.linalg.eigh(0.5 * (gain + gain.T))
+        informed = w > CORRECTION_RANK_TOLERANCE * max(float(w[-1]), 0.0)
+        if not informed.any():
+            return True
+        z = v[:, informed].T @ d
+        return float(np.sum(z * z / w[informed])) <= limit
 
     def _finish_model(self, lm: _Landmark, upd, scan: Scan) -> None:
         """Algorithm 7 and wrapping, carried over to the landmark's ``p(v | r)``.
