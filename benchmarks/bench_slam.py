@@ -80,7 +80,6 @@ def summarise_runs(runs: list[dict[str, object]]) -> dict[str, object]:
             row[key] = float(np.median([r[key] for r in runs]))
     medians = [float(r["median"]) for r in runs]
     row["range"] = (min(medians), max(medians))
-    row["vs_thesis"] = THESIS_STEP_MS / float(row["mean"])
     return row
 
 

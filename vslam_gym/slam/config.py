@@ -374,10 +374,9 @@ class FilterConfig:
             0.2 m instead of all; a third sample 0.201 -> 0.193 m, 19 of 20 both); the
             explorer mapped more on worlds 1000-1039 (coverage 0.310 -> 0.332, paired t
             +2.0; ATE 0.091 -> 0.084 m) but not on 1040-1059 (0.306 -> 0.304, ATE 0.088
-            -> 0.123 m); at 16.3 ``small`` is
-            worse in both samples (0.093 / 0.096 -> 0.126 / 0.123 m) and the explorer's
-            ATE 0.091 -> 0.083 m at level coverage (docs/measurements.md, "Pose
-            corrections beyond their own covariance").
+            -> 0.123 m); at 16.3 ``small`` is worse in both samples (0.093 / 0.096 ->
+            0.126 / 0.123 m) and the explorer's ATE 0.091 -> 0.083 m at level coverage
+            (docs/measurements.md, "Pose corrections beyond their own covariance").
         icp_max_pose_mahalanobis: an ICP result whose pose is further than this from the
             predicted pose (Mahalanobis distance, 3 dof, with ``icp_gate_sigma_floor``
             added to the covariance) fails the plausibility gate. Not a thesis value

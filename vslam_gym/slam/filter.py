@@ -1502,8 +1502,8 @@ class VertexSLAM:
             return True
         d = mu[:3] - self._mu[:3]
         d[2] = wrap_angle(d[2])
-        reduction = self._sigma[:3, :3] - sigma[:3, :3]  # the correction's covariance
-        w, v = np.linalg.eigh(0.5 * (reduction + reduction.T))
+        # the correction's covariance: how much the update shrank the pose's
+        w, v = np.linalg.eigh(symmetrize(self._sigma[:3, :3] - sigma[:3, :3]))
         informed = w > CORRECTION_RANK_TOLERANCE * max(float(w[-1]), 0.0)
         if not informed.any():
             return True
