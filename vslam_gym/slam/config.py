@@ -612,12 +612,13 @@ class FilterConfig:
             fused as a direct pose measurement (``H = [I, 0]``) after the motion update.
             Measured in docs/radish.md (the ``logs`` preset takes ``"odometry"``). On
             the simulated worlds (session 24, docs/measurements.md, "Scan-matched
-            motion"), ``"odometry"`` closes the ``house`` loop better (position ATE
-            0.189-0.201 -> 0.162 / 0.170 m, final error 0.063-0.076 -> 0.041 / 0.034
-            m, two round-off samples) and lowers the mean pose NEES two to four times
-            on every route, but the ``frontier`` explorer's position ATE is worse on
-            the 40 held-out random worlds (0.091 -> 0.126 m), and the matcher adds
-            about 5 ms to a step: ``"none"`` in ``default`` and ``fast``.
+            motion on the simulated worlds"), ``"odometry"`` closes the ``house`` loop
+            better (position ATE 0.189-0.201 -> 0.162 / 0.170 m, final error
+            0.063-0.076 -> 0.041 / 0.034 m, two round-off samples) and lowers the mean
+            pose NEES two to four times on every route, but the ``frontier``
+            explorer's position ATE is worse on the 40 held-out random worlds (0.091
+            -> 0.126 m), and the matcher adds about 5 ms to a step: ``"none"`` in
+            every preset but ``logs``.
         creation_overlap_distance: an unmatched set is not made a new landmark when the
             median distance [m] of its points to the object lines of an aligned candidate
             landmark (at that candidate's ICP pose if it passed the gate, or at the
