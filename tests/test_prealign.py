@@ -72,3 +72,48 @@ def test_pose_measurement_update_is_the_dense_kalman_update():
     np.testing.assert_allclose(mu_new[3:], expected[3:], atol=1e-12)
     np.testing.assert_allclose(sigma_new, (np.eye(7) - gain @ h) @ sigma, atol=1e-12)
     np.testing.assert_array_equal(sigma_new, sigma_new.T)
+
+
+def _filtered(prealign: str, **matcher) -> SlamConfig:
+    """The default with a 0.2 m / 0.2 rad motion filter (as in the ``fast`` preset)."""
+    motion_filter = {"measurement_min_travel": 0.2, "measurement_min_turn": 0.2}
+    return SlamConfig.from_dict(
+        {"filter": {**motion_filter, "prealign": prealign}, "matcher": matcher}
+    )
+
+
+def test_motion_filter_matches_only_on_the_steps_that_measure(monkeypatch):
+    import vslam_gym.slam.filter as filter_module
+
+    calls = []
+    real = filter_module.match_scan
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(filter_module, "match_scan", counting)
+    slam, beliefs, odo_err, true = run(_filtered("odometry"), steps=STEPS)
+    measured = sum(b.measured for b in beliefs)
+    assert 3 <= measured <= STEPS // 2  # the filter skips every other step here
+    # one match per measuring step but the first (empty local map); the loop closure's
+    # matcher is another module's import
+    assert len(calls) == measured - 1
+    assert sum(b.prealigned for b in beliefs) >= measured - 2
+    assert not any(b.prealigned and not b.measured for b in beliefs)
+    err = np.hypot(*(beliefs[-1].pose[:2] - true[STEPS - 1, :2]))
+    assert err < 0.15, (err, odo_err[-1])
+    np.testing.assert_array_equal(slam._sigma, slam._sigma.T)
+    assert np.linalg.eigvalsh(slam._sigma).min() > 0
+
+
+def test_motion_filter_without_matches_equals_the_odometry():
+    # Every match declined (too few points): the composed odometry since the last
+    # measuring step replaces the odometry's steps, the same to first order.
+    _, declined, _, _ = run(_filtered("odometry", min_points=10**6), steps=STEPS)
+    _, odometry, _, _ = run(_filtered("none"), steps=STEPS)
+    assert not any(b.prealigned for b in declined)
+    assert [b.measured for b in declined] == [b.measured for b in odometry]
+    for a, b in zip(declined, odometry, strict=True):
+        np.testing.assert_allclose(a.pose, b.pose, atol=1e-9)
+        np.testing.assert_allclose(a.pose_cov, b.pose_cov, rtol=1e-6, atol=1e-12)

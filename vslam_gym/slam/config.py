@@ -623,7 +623,10 @@ class FilterConfig:
             -> 0.095 m); the matcher costs about 4 ms per step (``bench_wrapper``: 10-15
             % fewer steps per second). With the logs' covariance (floor ``(0.01, 0.01,
             0.002)``, inflation 10) the explorer's ATE measured worse (0.091 -> 0.126
-            m). ``"none"`` in the ``thesis`` and ``fast`` presets.
+            m). ``"none"`` in the ``thesis`` and ``fast`` presets. Under a motion
+            filter (``measurement_min_travel``, ``measurement_min_turn``) the match runs
+            only on the steps that measure, from the last of them with the odometry
+            since then as prior (measured with the ``fast`` preset: ``SlamConfig.fast``).
         creation_overlap_distance: an unmatched set is not made a new landmark when the
             median distance [m] of its points to the object lines of an aligned candidate
             landmark (at that candidate's ICP pose if it passed the gate, or at the

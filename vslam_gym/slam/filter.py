@@ -118,7 +118,6 @@ DEFAULT_MATCHER_COVARIANCE_INFLATION = 3.0
 """``ScanMatcherConfig.covariance_inflation`` of the default preset (see
 :data:`DEFAULT_MATCHER_SIGMA_FLOOR`; the logs' 10 in the ``logs`` and ``fast`` presets)."""
 
-
 CORRECTION_RANK_TOLERANCE = 1e-6
 """Directions whose correction variance is below this times the largest are left out of
 :meth:`VertexSLAM._plausible_correction` (the update hardly informs them; round-off there
@@ -298,6 +297,18 @@ class SlamConfig:
         predicted pose (``icp_prior_point_sigma=0.03`` with the gate's floor): better or
         level on every world in two round-off samples (docs/measurements.md, "ICP pose
         prior").
+
+        Without the default's scan-matched motion, for throughput. With it (``{"preset":
+        "fast", "filter": {"prealign": "odometry"}, "matcher": {"sigma_floor": [0.002,
+        0.002, 0.0005], "covariance_inflation": 3}}``; under the motion filter the match
+        runs only on the steps that measure) it measured much more accurate but slower
+        (session 25, docs/measurements.md, "Scan-matched motion in the `fast` preset";
+        seeds 0-9, ``house`` 0-19): position ATE single_landmark / small / curved /
+        ``house`` 0.232 / 0.147 / 0.117 / 0.368 -> 0.193 / 0.085 / 0.085 / 0.157-0.163
+        m, ``house`` final error 0.331 -> 0.019-0.020 m; the ``frontier`` explorer on
+        worlds 1000-1039 ATE 0.133 -> 0.082 m at level coverage; but 80-105 / 61-91
+        instead of 101-105 / 79-95 steps/s on random worlds / ``house``
+        (``bench_wrapper.py``, three alternating runs), this preset's own target.
         """
         return cls(
             filter=FilterConfig(
@@ -330,12 +341,11 @@ class SlamConfig:
                 # Not measured here (the default's since session 22, with the rival test
                 # that this preset keeps off).
                 single_line_min_beams=0,
-                # Not measured here: the matcher would add about 4 ms to a step that
-                # takes 5-10 ms (the default's since session 25).
+                # Measured more accurate but slower (see above).
                 prealign="none",
             ),
             # The loop closure's revisit match with the matcher's own covariance, as
-            # measured above (the default's tighter one since session 25).
+            # measured before session 25 (the default's is tighter since then).
             matcher=ScanMatcherConfig(),
         )
 
@@ -667,6 +677,10 @@ class VertexSLAM:
         self._step_ms_parts: dict[str, float] = dict.fromkeys(STEP_PARTS, 0.0)
         self._local_map = LocalMap(self.config.matcher)
         self._matcher_pose = self._mu[:3].copy()  # "odometry": pose in the matcher's frame
+        # "odometry" under a motion filter: the odometry since the last match (relative
+        # pose, covariance) and the pose rows of the state then; None: no step since.
+        self._pending: tuple[np.ndarray, np.ndarray] | None = None
+        self._pending_rows: tuple[np.ndarray, np.ndarray] | None = None
         self._normals: tuple[np.ndarray, np.ndarray] | None = None  # the step's scan normals
         self._loop = self._make_loop_closure()
         self._loop_closed = False
@@ -742,16 +756,18 @@ class VertexSLAM:
         start = time.perf_counter()
         if mode != "none":
             points = scan_points(scan.ranges, scan.bearings, scan.max_range)
+        measured = None
         if mode == "none":
             self._motion_update(u)
             self._prealigned = False
+        elif mode == "odometry" and self._motion_filtered():
+            measured = self._filtered_matched_motion_update(u, points)
+        elif mode == "odometry":
+            self._prealigned = self._matched_motion_update(u, points)
         else:
-            if mode == "odometry":
-                self._prealigned = self._matched_motion_update(u, points)
-            else:
-                self._motion_update(u)
-                self._prealigned = self._fuse_match(points)
-        self._measured = self._moved_enough()
+            self._motion_update(u)
+            self._prealigned = self._fuse_match(points)
+        self._measured = self._moved_enough() if measured is None else measured
         self._pruned = ()
         self._loop_closed = False
         parts["motion"] = (time.perf_counter() - start) * 1e3
@@ -780,6 +796,11 @@ class VertexSLAM:
             start = time.perf_counter()
             self._local_map.add(points, self._mu[:3])
             parts["motion"] += (time.perf_counter() - start) * 1e3
+
+    def _motion_filtered(self) -> bool:
+        """Whether a motion filter (``measurement_min_travel``/``_turn``) is on."""
+        cfg = self.config.filter
+        return cfg.measurement_min_travel > 0.0 or cfg.measurement_min_turn > 0.0
 
     def _moved_enough(self) -> bool:
         """Whether the motion filter lets this step run the measurement update.
@@ -832,6 +853,43 @@ class VertexSLAM:
         match, the odometry. Returns whether the match was used.
         """
         delta, cov = increment_to_relative(self._lidar_increments(u), self._odometry_noise(u))
+        return self._matched_relative_update(delta, cov, points)
+
+    def _filtered_matched_motion_update(self, u: np.ndarray, points: np.ndarray) -> bool:
+        """``prealign="odometry"`` under a motion filter; returns whether the step measures.
+
+        The matcher runs only on the steps that measure (its cost is then paid a third
+        as often as the steps in the ``fast`` preset). Between them the belief follows
+        the odometry, and the odometry is also composed into a relative pose since the
+        last match. On a step that measures, the pose rows of the state go back to their
+        values after the last measurement update (motion updates change nothing else)
+        and one motion update with the matched relative pose since then, the composed
+        odometry as its prior, replaces the odometry's. Without a match the result is
+        the odometry's again (the same composition, to first order).
+        """
+        if self._pending is None:  # the first step since the last match
+            self._pending = (np.zeros(3), np.zeros((3, 3)))
+            self._pending_rows = (self._mu[:3].copy(), self._sigma[:3].copy())
+        delta, cov = increment_to_relative(self._lidar_increments(u), self._odometry_noise(u))
+        self._pending = relative_motion_update(*self._pending, delta, cov)
+        self._motion_update(u)
+        self._prealigned = False
+        if not self._moved_enough():
+            return False
+        mu, sigma = self._mu.copy(), self._sigma.copy()
+        mu[:3], sigma[:3] = self._pending_rows
+        sigma[:, :3] = sigma[:3].T
+        self._mu, self._sigma = mu, sigma
+        (delta, cov), self._pending = self._pending, None
+        self._prealigned = self._matched_relative_update(delta, cov, points)
+        return True
+
+    def _matched_relative_update(self, delta: np.ndarray, cov: np.ndarray, points) -> bool:
+        """Motion update with the scan matched from the odometry's ``delta`` (``cov``).
+
+        ``delta``: the odometry's relative pose since the matcher's last pose, in that
+        pose's frame; the match's prior. Returns whether the match was used.
+        """
         to_map = frame_rotation(self._matcher_pose[2])
         result = None
         if len(self._local_map):
