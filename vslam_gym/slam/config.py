@@ -620,8 +620,8 @@ class FilterConfig:
             (0.098-0.103 -> 0.075 m), the other routes level or better, the mean pose
             NEES lower on ``curved`` and ``house``, and the ``frontier`` explorer level
             on 60 held-out random worlds (coverage 0.309 -> 0.318, position ATE 0.090
-            -> 0.095 m); the matcher costs about 4 ms per step (``bench_wrapper``: 10-15
-            % fewer steps per second). With the logs' covariance (floor ``(0.01, 0.01,
+            -> 0.095 m); the matcher costs about 4 ms per step (``bench_wrapper``: 8-16 %
+            fewer steps per second). With the logs' covariance (floor ``(0.01, 0.01,
             0.002)``, inflation 10) the explorer's ATE measured worse (0.091 -> 0.126
             m). ``"none"`` in the ``thesis`` and ``fast`` presets. Under a motion
             filter (``measurement_min_travel``, ``measurement_min_turn``) the match runs

@@ -858,8 +858,8 @@ class VertexSLAM:
     def _filtered_matched_motion_update(self, u: np.ndarray, points: np.ndarray) -> bool:
         """``prealign="odometry"`` under a motion filter; returns whether the step measures.
 
-        The matcher runs only on the steps that measure (its cost is then paid a third
-        as often as the steps in the ``fast`` preset). Between them the belief follows
+        The matcher runs only on the steps that measure (about a third of the steps
+        under the ``fast`` preset's motion filter). Between them the belief follows
         the odometry, and the odometry is also composed into a relative pose since the
         last match. On a step that measures, the pose rows of the state go back to their
         values after the last measurement update (motion updates change nothing else)
@@ -884,7 +884,9 @@ class VertexSLAM:
         self._prealigned = self._matched_relative_update(delta, cov, points)
         return True
 
-    def _matched_relative_update(self, delta: np.ndarray, cov: np.ndarray, points) -> bool:
+    def _matched_relative_update(
+        self, delta: np.ndarray, cov: np.ndarray, points: np.ndarray
+    ) -> bool:
         """Motion update with the scan matched from the odometry's ``delta`` (``cov``).
 
         ``delta``: the odometry's relative pose since the matcher's last pose, in that
