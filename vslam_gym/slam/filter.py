@@ -64,6 +64,7 @@ from vslam_gym.slam.motion import (
     inverse,
     motion_update,
     odometry_noise,
+    predict_pose,
     relative_motion_update,
 )
 from vslam_gym.slam.pruning import (
@@ -678,9 +679,9 @@ class VertexSLAM:
         self._local_map = LocalMap(self.config.matcher)
         self._matcher_pose = self._mu[:3].copy()  # "odometry": pose in the matcher's frame
         # "odometry" under a motion filter: the odometry since the last match (relative
-        # pose, covariance) and the pose rows of the state then; None: no step since.
-        self._pending: tuple[np.ndarray, np.ndarray] | None = None
-        self._pending_rows: tuple[np.ndarray, np.ndarray] | None = None
+        # pose, covariance) and the state's pose mean and pose rows then; None: no step
+        # since the last match.
+        self._pending: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._normals: tuple[np.ndarray, np.ndarray] | None = None  # the step's scan normals
         self._loop = self._make_loop_closure()
         self._loop_closed = False
@@ -802,10 +803,11 @@ class VertexSLAM:
         cfg = self.config.filter
         return cfg.measurement_min_travel > 0.0 or cfg.measurement_min_turn > 0.0
 
-    def _moved_enough(self) -> bool:
+    def _moved_enough(self, pose: np.ndarray | None = None) -> bool:
         """Whether the motion filter lets this step run the measurement update.
 
-        True on the first step, and once the pose mean has moved
+        ``pose``: the pose mean to test (default: the state's). True on the first step,
+        and once the pose mean has moved
         ``measurement_min_travel`` [m] or turned ``measurement_min_turn`` [rad] since the
         last measurement update (always, when both are 0).
         """
@@ -814,7 +816,7 @@ class VertexSLAM:
             cfg.measurement_min_travel <= 0.0 and cfg.measurement_min_turn <= 0.0
         ):
             return True
-        d = self._mu[:3] - self._measured_at
+        d = (self._mu[:3] if pose is None else pose) - self._measured_at
         travel = float(np.hypot(d[0], d[1]))
         turn = abs(float(wrap_angle(d[2])))
         return bool(
@@ -868,20 +870,25 @@ class VertexSLAM:
         the odometry's again (the same composition, to first order).
         """
         if self._pending is None:  # the first step since the last match
-            self._pending = (np.zeros(3), np.zeros((3, 3)))
-            self._pending_rows = (self._mu[:3].copy(), self._sigma[:3].copy())
-        delta, cov = increment_to_relative(self._lidar_increments(u), self._odometry_noise(u))
-        self._pending = relative_motion_update(*self._pending, delta, cov)
-        self._motion_update(u)
+            rows = (self._mu[:3].copy(), self._sigma[:3].copy())
+            self._pending = (np.zeros(3), np.zeros((3, 3)), *rows)
+        since, since_cov, pose, pose_rows = self._pending
+        lidar_u = self._lidar_increments(u)
+        delta, cov = increment_to_relative(lidar_u, self._odometry_noise(u))
+        since, since_cov = relative_motion_update(since, since_cov, delta, cov)
         self._prealigned = False
-        if not self._moved_enough():
+        # the mean the odometry's motion update would give (motion_update's own)
+        if not self._moved_enough(predict_pose(self._mu[:3], lidar_u)):
+            self._pending = (since, since_cov, pose, pose_rows)
+            self._motion_update(u)
             return False
+        # a measuring step: its odometry update would be replaced at once, so the state
+        # goes straight back to the pose rows after the last measurement update
         mu, sigma = self._mu.copy(), self._sigma.copy()
-        mu[:3], sigma[:3] = self._pending_rows
-        sigma[:, :3] = sigma[:3].T
-        self._mu, self._sigma = mu, sigma
-        (delta, cov), self._pending = self._pending, None
-        self._prealigned = self._matched_relative_update(delta, cov, points)
+        mu[:3], sigma[:3] = pose, pose_rows
+        sigma[:, :3] = pose_rows.T
+        self._mu, self._sigma, self._pending = mu, sigma, None
+        self._prealigned = self._matched_relative_update(since, since_cov, points)
         return True
 
     def _matched_relative_update(
