@@ -6,7 +6,8 @@ step; the filter's own wall time per step (``Belief.step_ms``: motion update,
 segmentation, association, map updates, new landmarks; not the simulation) is
 summarised as median, mean, 95th percentile and maximum, with the median of the last
 tenth of the steps (cost grows with the map) and the final landmark count. Under a motion
-filter (the ``fast`` preset) most steps skip the measurement update: compare the means.
+filter (the default measures after 0.15 m or 0.15 rad, ``fast`` after 0.2 m or 0.2 rad)
+the steps that skip the measurement update are cheap: the mean is the CPU time per step.
 
 The episode runs ``--repeats`` times (the same results each time, the filter is
 deterministic), every world and preset once per round, so that a slow minute of a

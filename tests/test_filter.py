@@ -29,6 +29,16 @@ EDGES = polygon_edges(OBJECTS)
 ALPHAS = (0.01, 0.005, 0.005, 0.001)
 
 
+EVERY_SCAN = {"measurement_min_travel": 0.0, "measurement_min_turn": 0.0}
+"""Filter options without the default's motion filter: every scan is measured. For the
+tests that take their scans from (nearly) one pose, which the motion filter would skip."""
+
+
+def every_scan(config: SlamConfig) -> SlamConfig:
+    """``config`` with :data:`EVERY_SCAN`."""
+    return replace(config, filter=replace(config.filter, **EVERY_SCAN))
+
+
 def circle_route(n=120):
     t = np.linspace(0, 2 * np.pi, n)
     return np.column_stack([3.5 + 3.0 * np.sin(t), -3.0 * np.cos(t), t])
@@ -128,8 +138,12 @@ def test_config_from_dict_and_presets():
     # ... and stops per-landmark alignments that leave ten times the gate
     assert SlamConfig.logs().filter.icp_stop_beyond_gate == 10.0
     assert SlamConfig().filter.icp_stop_beyond_gate == 0.0
-    for name in ("default", "thesis", "logs"):  # every scan is measured
+    for name in ("thesis", "logs"):  # every scan is measured
         assert SlamConfig.preset(name).filter.measurement_min_travel == 0.0
+        assert SlamConfig.preset(name).filter.measurement_min_turn == 0.0
+    # the default measures after 0.15 m or 0.15 rad of motion, fast after 0.2 m or 0.2 rad
+    assert SlamConfig().filter.measurement_min_travel == SlamConfig().filter.measurement_min_turn
+    assert SlamConfig().filter.measurement_min_travel == 0.15
     # update verification: on by default, off in the other presets (measured no better)
     assert SlamConfig().filter.verify_heading_sigma == 3.0
     for name in ("thesis", "logs", "fast"):
@@ -272,7 +286,7 @@ def test_references_are_stored_in_creation_order():
 def _kidnapped_update(config):
     """Map the first object from (0, 0, 0); then odometry says "no motion" but the robot
     was 0.4 m further on: the re-observation's ICP correction is 0.4 m."""
-    slam = VertexSLAM(SENSOR, config, initial_pose=(0.0, 0.0, 0.0))
+    slam = VertexSLAM(SENSOR, every_scan(config), initial_pose=(0.0, 0.0, 0.0))
     rng = np.random.default_rng(0)
     edges = polygon_edges(OBJECTS[:2])
     noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
@@ -535,7 +549,7 @@ def test_predicted_first_aligns_only_candidates_rejected_at_the_prediction(monke
         cfg = SlamConfig.from_dict(
             {"filter": {"association_pose": mode, "icp_gate_sigma_floor": list(floor)}}
         )
-        slam = VertexSLAM(SENSOR, cfg, initial_pose=(0.0, 0.0, 0.0))
+        slam = VertexSLAM(SENSOR, every_scan(cfg), initial_pose=(0.0, 0.0, 0.0))
         rng = np.random.default_rng(0)
         edges = polygon_edges(OBJECTS[:2])
         noise = (SENSOR.max_range, SENSOR.sigma_range, SENSOR.sigma_bearing, rng)
@@ -599,14 +613,20 @@ def test_motion_filter_measures_only_after_enough_motion():
     for name in ("measurement_min_travel", "measurement_min_turn"):
         with pytest.raises(ValueError, match=name):
             SlamConfig.from_dict({"filter": {name: -0.1}})
-    assert SlamConfig().filter.measurement_min_travel == 0.0  # every scan by default
+    # the default's: after 0.15 m or 0.15 rad, here every third step of 0.06 m
+    default = VertexSLAM(SENSOR)
+    flags = []
+    for k in range(1, 8):
+        pose = np.array([0.06 * k, 0.0, 0.0])
+        flags.append(default.step([0.0, 0.06, 0.0], cast(pose, edges, PHI, *noise), PHI).measured)
+    assert flags == [True, False, False, True, False, False, True]
 
 
 def _turned_update(config, turn=0.05, moved=0.0):
     """Map the first objects from (0, 0, 0); then odometry says "no motion" but the robot
     turned by ``turn`` [rad] and moved ``moved`` [m] forward (odometry-driven motion: the
     scan-matched motion would find the turn before the landmark update)."""
-    config = replace(config, filter=replace(config.filter, prealign="none"))
+    config = every_scan(replace(config, filter=replace(config.filter, prealign="none")))
     slam = VertexSLAM(SENSOR, config, initial_pose=(0.0, 0.0, 0.0))
     rng = np.random.default_rng(0)
     edges = polygon_edges(OBJECTS[:2])
@@ -755,7 +775,7 @@ def test_step_time_parts_are_non_negative_and_within_the_step():
 
     from vslam_gym.slam.filter import STEP_PARTS
 
-    _, beliefs, _, _ = run(SlamConfig(), steps=15)
+    _, beliefs, _, _ = run(every_scan(SlamConfig()), steps=15)
     for b in beliefs:
         assert tuple(b.step_ms_parts) == STEP_PARTS
         assert all(v >= 0.0 for v in b.step_ms_parts.values())
@@ -781,7 +801,8 @@ def test_single_line_min_beams_updates_with_one_long_object_line():
     # face of the landmark for about 20 steps: matched, but only "associated" (one
     # object line) by the thesis's rule.
     def outcomes(**extra):
-        log = run_episode("single_landmark", 4, overrides={"filter": extra}, max_steps=110)
+        overrides = {"filter": {**EVERY_SCAN, **extra}}
+        log = run_episode("single_landmark", 4, overrides=overrides, max_steps=110)
         return Counter(d.outcome for d in log.decisions), log
 
     plain, _ = outcomes(single_line_min_beams=0)  # the thesis's rule

@@ -233,7 +233,10 @@ def _drive(loop_closure: bool, steps: int = 150, **options):
     far to the left; returns the beliefs and the true poses."""
     t = np.linspace(0.0, 2.0 * np.pi, steps)
     true = np.column_stack([4.5 + 3.5 * np.sin(t), 1.0 - 2.5 * np.cos(t), t])
-    filter_config = FilterConfig(loop_closure=loop_closure, loop_min_age=40, **options)
+    every_scan = {"measurement_min_travel": 0.0, "measurement_min_turn": 0.0}  # no motion filter
+    filter_config = FilterConfig(
+        loop_closure=loop_closure, loop_min_age=40, **{**every_scan, **options}
+    )
     config = SlamConfig(filter=filter_config)
     slam = VertexSLAM(SENSOR, config, initial_pose=true[0])
     rng = np.random.default_rng(1)

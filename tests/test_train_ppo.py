@@ -109,7 +109,7 @@ def test_make_env_fn_applies_the_slam_preset():
     plain = make_env_fn("VSlam/ExploreSmall-v0", 0, "coverage")()
     plain.reset(seed=0)
     try:
-        assert plain.get_wrapper_attr("slam").config.filter.measurement_min_travel == 0.0
+        assert plain.get_wrapper_attr("slam").config.filter.association_pose == "icp"  # default
     finally:
         plain.close()
 

@@ -84,7 +84,9 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     |                    |               |         | `unknown_lines`, `vertex_uncertainty`   |
     | `status`           | `(2,)`        | float32 | :class:`SlamStatus`: ``log1p`` of the   |
     |                    |               |         | landmark count and of the steps since   |
-    |                    |               |         | the last association                    |
+    |                    |               |         | the last association (steps that the    |
+    |                    |               |         | motion filter skips count: the default  |
+    |                    |               |         | measures after 0.15 m or 0.15 rad)      |
     | `frontier`         | `(4 K,)`      | float32 | optional, :class:`FrontierCue`: the K   |
     |                    |               |         | nearest unknown lines of the map, each  |
     |                    |               |         | as present flag, cos / sin of the       |

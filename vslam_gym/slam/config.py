@@ -626,7 +626,7 @@ class FilterConfig:
             m). ``"none"`` in the ``thesis`` and ``fast`` presets. Under a motion
             filter (``measurement_min_travel``, ``measurement_min_turn``) the match runs
             only on the steps that measure, from the last of them with the odometry
-            since then as prior (measured with the ``fast`` preset: ``SlamConfig.fast``).
+            since then as prior (the default's motion filter since session 26).
         creation_overlap_distance: an unmatched set is not made a new landmark when the
             median distance [m] of its points to the object lines of an aligned candidate
             landmark (at that candidate's ICP pose if it passed the gate, or at the
@@ -688,14 +688,23 @@ class FilterConfig:
             on) runs only once the pose mean has moved at least this far [m] ...
         measurement_min_turn: ... or turned at least this much [rad] since the last
             measurement update; other steps do the motion update only (the scan is not
-            used). 0 and 0 (the thesis) measure every scan. Scan-matching SLAM front
-            ends commonly process a scan only after such motion; it saves the work of
-            re-observing the same scene from almost the same pose. Measured at 0.1 m and
-            0.1 rad (protocol of ``creation_overlap_distance``; the routes move about
-            5-10 cm a step): CPU time per step 10.5 / 22 / 47 / 58 -> 6.5 / 15 / 29 / 45 ms, mean
-            pose NEES 117 / 612 / 279 / 4764 -> 61 / 532 / 110 / 4317, ATE 0.32 / 0.14 /
-            0.10 / 0.22 -> 0.24 / 0.17 / 0.08 / 0.36 m (``house``: two seeds of five at
-            0.58 and 0.77 m, final error 0.18 -> 0.63 m). Not the default.
+            used). 0 and 0 (the thesis, ``logs``) measure every scan. Scan-matching SLAM
+            front ends commonly process a scan only after such motion; it saves the work
+            of re-observing the same scene from almost the same pose, and counts the
+            scene's correlated model errors fewer times. With the scan-matched motion
+            (``prealign="odometry"``) the match too runs only on the steps that measure.
+            0.15 m and 0.15 rad by default (session 26, docs/measurements.md, "A motion
+            filter on the default"; seeds 0-9, ``house`` 0-19, three round-off samples,
+            against every scan): position ATE single_landmark / small / curved / house
+            0.119 / 0.090-0.091 / 0.075 / 0.158-0.161 -> 0.111 / 0.079-0.084 /
+            0.077-0.081 / 0.138-0.156 m, mean pose NEES 14 / 39-41 / 48 / 319-326 -> 11
+            / 19-21 / 32-35 / 132-161, mean filter step about half (``house`` 37.5 ->
+            16.2-18.2 ms side by side); the ``frontier`` explorer on 60 held-out worlds:
+            coverage 0.318 -> 0.316, position ATE 0.095 -> 0.084 m, mean NEES 378 -> 113.
+            0.2 m / 0.2 rad (the ``fast`` preset's) lost explorer coverage (0.326 / 0.322
+            -> 0.299 / 0.299 on worlds 1000-1019 / 1020-1039), 0.1 m / 0.1 rad too (0.312
+            / 0.277). Before the scan-matched motion, 0.1 m and 0.1 rad had measured
+            worse on ``house`` (seeds 0-4, ATE 0.22 -> 0.36 m).
         create_beside_candidates: an unmatched set becomes a new landmark even when a
             landmark near it was aligned and tested (and failed the gate or the
             detection test); True in the thesis. False: only a set whose candidates
@@ -945,8 +954,8 @@ class FilterConfig:
     icp_stop_beyond_gate: float = 0.0
     icp_retry_correspondence_distance: float = 0.0
     icp_retry_min_fraction: float = 0.5
-    measurement_min_travel: float = 0.0
-    measurement_min_turn: float = 0.0
+    measurement_min_travel: float = 0.15
+    measurement_min_turn: float = 0.15
     create_beside_candidates: bool = True
     verify_heading_sigma: float = 3.0
     verify_position_sigma: float = 0.0
@@ -1103,6 +1112,8 @@ class FilterConfig:
             observation_model_heading_sigma=0.0,
             loop_closure=False,
             prealign="none",
+            measurement_min_travel=0.0,
+            measurement_min_turn=0.0,
         )
         base.update(overrides)
         return dataclass_from_dict(cls, base)
