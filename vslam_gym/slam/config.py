@@ -1095,8 +1095,8 @@ class FilterConfig:
         """The thesis's filter.
 
         No chain pruning, ICP plausibility gate, update verification, model-error terms,
-        loop closure, near-candidate or object-beam test, update from one long line, or
-        whole-scan prealignment.
+        loop closure, near-candidate or object-beam test, update from one long line,
+        whole-scan prealignment, or motion filter (every scan is measured).
         """
         base: dict[str, Any] = dict(
             single_line_min_beams=0,

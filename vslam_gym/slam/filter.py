@@ -864,8 +864,8 @@ class VertexSLAM:
     def _filtered_matched_motion_update(self, u: np.ndarray, points: np.ndarray) -> bool:
         """``prealign="odometry"`` under a motion filter; returns whether the step measures.
 
-        The matcher runs only on the steps that measure (about a third of the steps
-        under the ``fast`` preset's motion filter). Between them the belief follows
+        The matcher runs only on the steps that measure (about half of the steps under
+        the default's motion filter on the routes). Between them the belief follows
         the odometry, and the odometry is also composed into a relative pose since the
         last match. On a step that measures, the pose rows of the state go back to their
         values after the last measurement update (motion updates change nothing else)
