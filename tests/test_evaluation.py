@@ -419,6 +419,11 @@ def test_episode_log_is_consistent(episode):
     timing = episode_metrics(episode)
     assert timing["step_ms_mean"] == pytest.approx(np.mean(episode.step_ms))
     assert timing["step_ms_median"] == pytest.approx(np.median(episode.step_ms))
+    # the default's motion filter: some steps measure (the first always), some do not
+    assert episode.measured.shape == (E2E_STEPS,) and episode.measured[0]
+    assert 0.0 < timing["measured_fraction"] == np.mean(episode.measured) < 1.0
+    assert timing["measured_step_ms_median"] == np.median(episode.step_ms[episode.measured])
+    assert {d.step for d in episode.decisions} <= set(np.flatnonzero(episode.measured) + 1)
     rejected = [d for d in episode.decisions if d.outcome == "rejected"]
     assert timing["rejected_updates"] == len(rejected)
     assert timing["updates"] == sum(d.outcome == "updated" for d in episode.decisions) > 0
@@ -567,6 +572,7 @@ def test_evaluate_applies_overrides_over_the_preset(tmp_path):
     assert metrics["per_seed"][0]["preset"] == "default"
     first_scan_only = run_episode("single_landmark", seed=0, max_steps=1)
     assert metrics["per_seed"][0]["landmarks"] == len(first_scan_only.final_belief.landmarks)
+    assert metrics["per_seed"][0]["measured_fraction"] == 1 / 8
     assert "--set" in format_table(metrics).splitlines()[0]
     with pytest.raises(ValueError, match="measurement_min_travel"):
         evaluate(

@@ -130,7 +130,13 @@ CREATION_CAUSES = ("new", "far", "gated", "rejected", "accepted")
 candidates that model the set's own obstacle: none was a candidate (``"new"``), or the
 one that came closest to an association was not aligned (``"far"``), had its ICP result
 gated, had its detection test (or the object-beam test) fail, or was accepted."""
-TIMING_KEYS = ("step_ms_median", "step_ms_p95", "step_ms_mean", "wall_s")
+TIMING_KEYS = (
+    "step_ms_median",
+    "step_ms_p95",
+    "step_ms_mean",
+    "measured_step_ms_median",
+    "wall_s",
+)
 """Metrics that measure time (they differ between identical runs)."""
 
 ProgressCallback = Callable[[int, Belief], None]
@@ -190,6 +196,8 @@ class EpisodeLog:
         slam_covs: ``(T + 1, 3, 3)`` SLAM pose covariances [m^2, m rad, rad^2] (the lidar
             sits at the robot centre in simulation, so lidar and robot pose coincide).
         step_ms: ``(T,)`` filter wall time per step [ms] (``Belief.step_ms``).
+        measured: ``(T,)`` bool, the step ran the measurement update (``Belief.measured``;
+            a motion filter skips it on the others).
         landmark_counts: ``(T + 1,)`` landmarks in the belief.
         collisions: ``(T,)`` bool, the robot touched an obstacle during the step.
         decisions: every set decision of every step, in order.
@@ -210,6 +218,7 @@ class EpisodeLog:
     slam_poses: np.ndarray
     slam_covs: np.ndarray
     step_ms: np.ndarray
+    measured: np.ndarray
     landmark_counts: np.ndarray
     collisions: np.ndarray
     decisions: list[DecisionRecord] = field(default_factory=list)
@@ -317,7 +326,7 @@ def run_episode(
     follower = RouteFollower(env.world.route)
     true_poses, odom_poses = [info["pose"]], [info["odom_pose"]]
     slam_poses, slam_covs = [belief.robot_pose], [belief.pose_cov]
-    step_ms, counts, collisions = [], [len(belief.landmarks)], []
+    step_ms, measured, counts, collisions = [], [], [len(belief.landmarks)], []
     decisions: list[DecisionRecord] = []
     loop_closures = 0
     try:
@@ -335,6 +344,7 @@ def run_episode(
             slam_poses.append(belief.robot_pose)
             slam_covs.append(belief.pose_cov)
             step_ms.append(belief.step_ms)
+            measured.append(belief.measured)
             counts.append(len(belief.landmarks))
             collisions.append(bool(info["collision"]))
             loop_closures += int(belief.loop_closed)
@@ -373,6 +383,7 @@ def run_episode(
         slam_poses=np.array(slam_poses, dtype=float),
         slam_covs=np.array(slam_covs, dtype=float),
         step_ms=np.array(step_ms, dtype=float),
+        measured=np.array(measured, dtype=bool),
         landmark_counts=np.array(counts, dtype=int),
         collisions=np.array(collisions, dtype=bool),
         decisions=decisions,
@@ -746,7 +757,10 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     the duplicates);
     ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``);
     ``step_ms_median``, ``step_ms_p95``, ``step_ms_mean`` [ms] (the mean is what a
-    throughput sees when a motion filter makes most steps cheap); ``wall_s`` [s].
+    throughput sees when a motion filter makes most steps cheap);
+    ``measured_fraction`` (steps that ran the measurement update) and
+    ``measured_step_ms_median`` [ms] (the median over them; NaN when none did);
+    ``wall_s`` [s].
     """
     if log.steps == 0:
         raise ValueError("the episode has no step to evaluate")
@@ -801,6 +815,10 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
             "step_ms_median": median,
             "step_ms_p95": p95,
             "step_ms_mean": float(np.mean(log.step_ms)) if len(log.step_ms) else math.nan,
+            "measured_fraction": float(np.mean(log.measured)),
+            "measured_step_ms_median": (
+                float(np.median(log.step_ms[log.measured])) if log.measured.any() else math.nan
+            ),
             "wall_s": log.wall_s,
         }
     )
@@ -1281,6 +1299,7 @@ _TABLE_COLUMNS = (
     ("ms med", "step_ms_median", "{:.1f}"),
     ("ms p95", "step_ms_p95", "{:.1f}"),
     ("ms mean", "step_ms_mean", "{:.1f}"),
+    ("ms meas", "measured_step_ms_median", "{:.1f}"),
 )
 
 
