@@ -60,7 +60,7 @@ def bench(world: str, preset: str, seed: int, max_steps: int | None) -> dict[str
         "route": "done" if log.route_done else "cut",
         "median": median,
         "mean": float(ms.mean()),
-        "measured": float(np.median(ms[log.measured])) if log.measured.any() else float("nan"),
+        "measured": timing_summary(ms[log.measured])[0],
         "p95": p95,
         "max": float(ms.max()),
         "late": float(np.median(tail)),

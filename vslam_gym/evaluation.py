@@ -816,9 +816,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
             "step_ms_p95": p95,
             "step_ms_mean": float(np.mean(log.step_ms)) if len(log.step_ms) else math.nan,
             "measured_fraction": float(np.mean(log.measured)),
-            "measured_step_ms_median": (
-                float(np.median(log.step_ms[log.measured])) if log.measured.any() else math.nan
-            ),
+            "measured_step_ms_median": timing_summary(log.step_ms[log.measured])[0],
             "wall_s": log.wall_s,
         }
     )
