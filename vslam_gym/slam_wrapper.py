@@ -85,8 +85,8 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     | `status`           | `(2,)`        | float32 | :class:`SlamStatus`: ``log1p`` of the   |
     |                    |               |         | landmark count and of the steps since   |
     |                    |               |         | the last association (steps that the    |
-    |                    |               |         | motion filter skips count: the default  |
-    |                    |               |         | measures after 0.15 m or 0.15 rad)      |
+    |                    |               |         | motion filter skips count:              |
+    |                    |               |         | ``measurement_min_travel``, ``_turn``)  |
     | `frontier`         | `(4 K,)`      | float32 | optional, :class:`FrontierCue`: the K   |
     |                    |               |         | nearest unknown lines of the map, each  |
     |                    |               |         | as present flag, cos / sin of the       |

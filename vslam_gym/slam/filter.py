@@ -877,14 +877,14 @@ class VertexSLAM:
             rows = (self._mu[:3].copy(), self._sigma[:3].copy())
             self._pending = (np.zeros(3), np.zeros((3, 3)), *rows)
         since, since_cov, pose, pose_rows = self._pending
-        lidar_u = self._lidar_increments(u)
-        delta, cov = increment_to_relative(lidar_u, self._odometry_noise(u))
+        lidar_u, noise = self._lidar_increments(u), self._odometry_noise(u)
+        delta, cov = increment_to_relative(lidar_u, noise)
         since, since_cov = relative_motion_update(since, since_cov, delta, cov)
         self._prealigned = False
         # the mean the odometry's motion update would give (motion_update's own)
         if not self._moved_enough(predict_pose(self._mu[:3], lidar_u)):
             self._pending = (since, since_cov, pose, pose_rows)
-            self._motion_update(u)
+            self._mu, self._sigma = motion_update(self._mu, self._sigma, lidar_u, noise)
             return False
         # a measuring step: its odometry update would be replaced at once, so the state
         # goes straight back to the pose rows after the last measurement update
