@@ -622,6 +622,37 @@ def test_motion_filter_measures_only_after_enough_motion():
     assert flags == [True, False, False, True, False, False, True]
 
 
+def _fresh_views(slam: VertexSLAM) -> list:
+    """The landmark views built from the filter's state now (no cache)."""
+    return [slam._landmark_view(lm) for lm in slam._landmarks]
+
+
+def test_belief_views_are_made_again_only_after_the_map_changed():
+    slam, beliefs, _, _ = run(
+        SlamConfig.from_dict(
+            {"filter": {"measurement_min_travel": 0.3, "measurement_min_turn": 1.0}}
+        ),
+        steps=30,
+    )
+    skipped = 0
+    for before, b in zip(beliefs[:-1], beliefs[1:], strict=True):
+        # a motion update leaves the map alone: the same views; a measurement makes new ones
+        assert (b.landmarks is before.landmarks) == (not b.measured)
+        skipped += not b.measured
+    assert skipped >= 10
+    # the views the last belief shares equal those made from the state now
+    for view, fresh in zip(beliefs[-1].landmarks, _fresh_views(slam), strict=True):
+        assert view.id == fresh.id and view.object_vertices == fresh.object_vertices
+        np.testing.assert_array_equal(view.reference, fresh.reference)
+        np.testing.assert_array_equal(view.reference_cov, fresh.reference_cov)
+        np.testing.assert_array_equal(view.model.mean, fresh.model.mean)
+        np.testing.assert_array_equal(view.model.cov, fresh.model.cov)
+        np.testing.assert_array_equal(view.model.u, fresh.model.u)
+    assert len(beliefs[-1].landmarks) == len(slam._landmarks) > 0
+    # a reset forgets them
+    assert slam.reset().landmarks == ()
+
+
 def _turned_update(config, turn=0.05, moved=0.0):
     """Map the first objects from (0, 0, 0); then odometry says "no motion" but the robot
     turned by ``turn`` [rad] and moved ``moved`` [m] forward (odometry-driven motion: the

@@ -117,6 +117,28 @@ def test_reward_terms_add_up_and_match_the_formulas():
     env.close()
 
 
+def test_segments_and_cells_follow_the_belief_and_are_reused_between_measurements():
+    env = gym.make("VSlam/ExploreSmall-v0")
+    wrapper = env
+    while not isinstance(wrapper, SlamWrapper):
+        wrapper = wrapper.env
+    env.reset(seed=2)
+    reused = 0
+    for action in _actions(40):
+        before = wrapper._mapped
+        env.step(action)
+        belief = wrapper.belief
+        reused += wrapper._mapped is before
+        assert (wrapper._mapped is before) == (not belief.measured)
+        fresh = belief_segments(belief, wrapper._unknown_threshold)
+        for key, value in fresh.items():
+            np.testing.assert_array_equal(wrapper._segments[key], value, err_msg=key)
+        cells = boundary_cells(fresh, wrapper.reward_config.boundary_cell)
+        np.testing.assert_array_equal(wrapper._cells, cells)
+    assert 5 <= reused < 40  # the motion filter skipped some scans, not all
+    env.close()
+
+
 def test_d_opt_and_coverage_presets():
     base = gym.make("VSlam/LidarWorld-v0", world="small")
     env = SlamWrapper(base, reward="d_opt")

@@ -215,6 +215,8 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._slam: VertexSLAM | None = None
         self._belief: Belief | None = None
         self._segments: dict[str, np.ndarray] = {}  # belief_segments of the latest belief
+        self._cells = np.zeros(0, dtype=np.int64)  # their boundary cells (boundary_cells)
+        self._mapped: tuple | None = None  # the belief landmarks they were computed from
         self._steps_since_association = 0
 
     # ------------------------------------------------------------------ API
@@ -258,8 +260,9 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 base.physics_config.control_period,
             )
         self._scan_m = obs["scan"]
-        self._segments = belief_segments(self._belief, self._unknown_threshold)
-        self._reward.reset(self._belief.pose_cov, self._boundary_cells())
+        self._mapped = None
+        self._refresh_segments()
+        self._reward.reset(self._belief.pose_cov, self._cells)
         info = self._info(info, {}, 0.0)
         return self._observe(obs), info
 
@@ -279,10 +282,8 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._steps_since_association = 0
         else:
             self._steps_since_association += 1
-        self._segments = belief_segments(self._belief, self._unknown_threshold)
-        rewards = self._reward.step(
-            self._belief.pose_cov, self._boundary_cells(), bool(info["collision"])
-        )
+        self._refresh_segments()
+        rewards = self._reward.step(self._belief.pose_cov, self._cells, bool(info["collision"]))
         info = self._info(info, rewards, float(env_reward))
         if self._shield is not None:
             info["executed_action"] = np.asarray(action, dtype=np.float32).copy()
@@ -291,8 +292,16 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     # ------------------------------------------------------------------ pieces
 
-    def _boundary_cells(self) -> np.ndarray:
-        return boundary_cells(self._segments, self.reward_config.boundary_cell)
+    def _refresh_segments(self) -> None:
+        """``_segments`` and ``_cells``: the latest belief's lines and boundary cells.
+
+        Computed again only when the belief's landmarks changed: the filter keeps one
+        ``landmarks`` tuple over the steps that leave the map alone (motion only).
+        """
+        if self._mapped is not self._belief.landmarks:
+            self._segments = belief_segments(self._belief, self._unknown_threshold)
+            self._cells = boundary_cells(self._segments, self.reward_config.boundary_cell)
+            self._mapped = self._belief.landmarks
 
     def _observe(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         belief = self._belief

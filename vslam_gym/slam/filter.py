@@ -692,30 +692,26 @@ class VertexSLAM:
         self._prealigned = False
         self._measured = False
         self._measured_at: np.ndarray | None = None  # pose after the last measurement update
+        self._views: tuple[LandmarkView, ...] | None = None  # the map's views, until it changes
         return self.belief
 
     @property
     def belief(self) -> Belief:
-        """The current belief (arrays are copies)."""
-        views = []
-        for lm in self._landmarks:
-            r = slice(lm.ref, lm.ref + REF_DIM)  # the point (a landmark frame's origin)
-            views.append(
-                LandmarkView(
-                    id=lm.id,
-                    reference=self._mu[r].copy(),
-                    reference_cov=self._sigma[r, r].copy(),
-                    model=_model_copy(self._model(lm)),
-                    object_vertices=lm.object_vertices,
-                )
-            )
+        """The current belief.
+
+        Its arrays are copies of the filter's state. The landmark views are made again only
+        after a step that may have changed the map: the beliefs of the steps between share
+        one ``landmarks`` tuple (the same objects), so treat its arrays as read-only.
+        """
+        if self._views is None:
+            self._views = tuple(self._landmark_view(lm) for lm in self._landmarks)
         pose = self._mu[:3].copy()
         return Belief(
             step=self._step,
             pose=pose,
             pose_cov=self._sigma[:3, :3].copy(),
             robot_pose=compose(pose, inverse(self._offset)),
-            landmarks=tuple(views),
+            landmarks=self._views,
             decisions=self._decisions,
             state_dim=int(self._mu.size),
             step_ms=self._step_ms,
@@ -724,6 +720,16 @@ class VertexSLAM:
             pruned=self._pruned,
             loop_closed=self._loop_closed,
             step_ms_parts=dict(self._step_ms_parts),
+        )
+
+    def _landmark_view(self, lm: _Landmark) -> LandmarkView:
+        r = slice(lm.ref, lm.ref + REF_DIM)  # the point (a landmark frame's origin)
+        return LandmarkView(
+            id=lm.id,
+            reference=self._mu[r].copy(),
+            reference_cov=self._sigma[r, r].copy(),
+            model=_model_copy(self._model(lm)),
+            object_vertices=lm.object_vertices,
         )
 
     def step(self, odometry, ranges, bearings) -> Belief:
@@ -758,6 +764,8 @@ class VertexSLAM:
         self._normals = None  # their normals, once computed (both keyframe maps use them)
         parts = dict.fromkeys(STEP_PARTS, 0.0)
         self._step_ms_parts = parts
+        # A motion update changes the pose rows only: the landmark views stay valid then.
+        views, self._views = self._views, None
         start = time.perf_counter()
         if mode != "none":
             points = scan_points(scan.ranges, scan.bearings, scan.max_range)
@@ -801,6 +809,8 @@ class VertexSLAM:
             start = time.perf_counter()
             self._local_map.add(points, self._mu[:3])
             parts["motion"] += (time.perf_counter() - start) * 1e3
+        elif not self._measured:
+            self._views = views
 
     def _motion_filtered(self) -> bool:
         """Whether a motion filter (``measurement_min_travel``/``_turn``) is on."""
