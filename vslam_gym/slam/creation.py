@@ -28,6 +28,7 @@ likelihoods meaningless; the line-based ones are not affected.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -70,12 +71,17 @@ def stacked_measurements(scan: Scan, first: int, last: int, sensor: SensorConfig
         ``(z, Sigma)``: ``z`` ``(2n,)`` as ``[r_0, phi_0, ...]`` [m, rad] and the
         block-diagonal ``Sigma`` ``(2n, 2n)``.
     """
+    z, var = _stacked(scan, first, last, sensor)
+    return z, np.diag(var)
+
+
+def _stacked(scan: Scan, first: int, last: int, sensor: SensorConfig):
+    """:func:`stacked_measurements` with the diagonal of ``Sigma`` ``(2n,)`` only."""
     n = last - first + 1
     z = np.empty(2 * n)
     z[0::2] = scan.ranges[first : last + 1]
     z[1::2] = scan.bearings[first : last + 1]
-    var = np.tile([sensor.sigma_range**2, sensor.sigma_bearing**2], n)
-    return z, np.diag(var)
+    return z, np.tile([sensor.sigma_range**2, sensor.sigma_bearing**2], n)
 
 
 def _points(x: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -352,11 +358,17 @@ class _SegmentModeller:
         self.scan, self.first, self.last = scan, first, last
         self.pose = np.asarray(pose, dtype=float)
         self.sensor, self.config, self.lin = sensor, config, lin
-        self.z, self.cov = stacked_measurements(scan, first, last, sensor)
+        # z (2n,) and the variances var (2n,) of its independent entries
+        self.z, self.var = _stacked(scan, first, last, sensor)
         self.points = _points(self.z, self.pose)  # (n, 2) world-frame points [m]
         self.n = last - first + 1
         self.point_cov = np.zeros((self.n, 2, 2))
         self.fast: _FirstOrderLines | None = None
+
+    @functools.cached_property
+    def cov(self) -> np.ndarray:
+        """``(2n, 2n)`` covariance of ``z``: ``diag(var)`` (the generic linearisation's)."""
+        return np.diag(self.var)
 
     def use_point_covariances(self, point_cov: np.ndarray) -> None:
         """Store the Cartesian point covariances; enable the closed-form first order."""
@@ -587,16 +599,17 @@ def vertex_distribution(
     slices = fit_slices(
         points, groups, modeller.config.exclusive_boundaries, modeller.config.boundary_window
     )
-    z, cov = modeller.z, modeller.cov
+    offset_var = np.zeros(0)
     if modeller.config.coarseness > 0:
         var = coarseness_variances(
             points, modeller.point_cov, slices, modeller.config.coarseness_significance
         )
-        z = np.concatenate([z, np.zeros(len(slices))])
-        cov = np.diag(np.concatenate([np.diag(cov), modeller.config.coarseness**2 * var]))
+        offset_var = modeller.config.coarseness**2 * var
     if modeller.fast is not None:
-        mu, sigma = _first_order_vertices(modeller, slices, np.diag(cov)[2 * modeller.n :])
+        mu, sigma = _first_order_vertices(modeller, slices, offset_var)
         return groups, mu, sigma
+    z = np.concatenate([modeller.z, np.zeros(offset_var.size)])
+    cov = np.diag(np.concatenate([modeller.var, offset_var]))
     mu, sigma = modeller.lin.propagate(_vertex_function(slices, modeller.pose, modeller.n), z, cov)
     return groups, mu.reshape(-1, 2), sigma
 
@@ -671,7 +684,7 @@ def _first_order_vertices(
     row_b = j_rho[1:] + np.sum(db * (mu - pb), axis=1)[:, None] * j_psi[1:]
     jac = inv[:, :, 0, None] * row_a[:, None, :] + inv[:, :, 1, None] * row_b[:, None, :]
     jac = jac.reshape(2 * (m + 1), n_in)
-    var_in = np.concatenate([np.diag(modeller.cov), offset_var])
+    var_in = np.concatenate([modeller.var, offset_var])
     sigma = symmetrize((jac * var_in) @ jac.T)
     return mu, sigma
 

@@ -812,16 +812,15 @@ def _run_vertices(
             continue
         slices += fit_slices(points, chunk, config.exclusive_boundaries, config.boundary_window)
         chunk = [g]
-    z, cov = modeller.z, modeller.cov
     offset_var = np.zeros(0)
     if config.coarseness > 0:
         var = coarseness_variances(points, point_cov, slices, config.coarseness_significance)
         offset_var = config.coarseness**2 * var
-        z = np.concatenate([z, np.zeros(len(slices))])
-        cov = np.diag(np.concatenate([np.diag(cov), offset_var]))
     if modeller.fast is not None:
         mu, sigma = _first_order_vertices(modeller, slices, offset_var)
         return mu.reshape(-1), sigma
+    z = np.concatenate([modeller.z, np.zeros(offset_var.size)])
+    cov = np.diag(np.concatenate([modeller.var, offset_var]))
     return modeller.lin.propagate(_vertex_function(slices, pose, n), z, cov, check=False)
 
 
