@@ -28,7 +28,6 @@ likelihoods meaningless; the line-based ones are not affected.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -364,11 +363,14 @@ class _SegmentModeller:
         self.n = last - first + 1
         self.point_cov = np.zeros((self.n, 2, 2))
         self.fast: _FirstOrderLines | None = None
+        self._fits: tuple[tuple[tuple[int, int], ...], _SpanFits] | None = None
 
-    @functools.cached_property
-    def cov(self) -> np.ndarray:
-        """``(2n, 2n)`` covariance of ``z``: ``diag(var)`` (the generic linearisation's)."""
-        return np.diag(self.var)
+    def span_fits(self, spans: list[tuple[int, int]]) -> _SpanFits:
+        """:class:`_SpanFits` of ``points`` over local ``spans`` (the last spans' kept)."""
+        key = tuple(spans)
+        if self._fits is None or self._fits[0] != key:
+            self._fits = (key, _SpanFits(self.points, spans))
+        return self._fits[1]
 
     def use_point_covariances(self, point_cov: np.ndarray) -> None:
         """Store the Cartesian point covariances; enable the closed-form first order."""
@@ -388,7 +390,7 @@ class _SegmentModeller:
             p0, d = _oriented_line(_points(x, self.pose))
             return np.concatenate([p0, p0 + d], axis=-1)
 
-        return self.lin.propagate(f, self.z[sl], self.cov[sl, sl], check=False)
+        return self.lin.propagate(f, self.z[sl], np.diag(self.var[sl]), check=False)
 
     def evaluate_line(self, a: int, b: int) -> _LineEval:
         """Fit a line to local beams ``a..b``; log-likelihood of each of them (3.2.20)."""
@@ -552,7 +554,7 @@ def fit_slices(
 def _parallel_pairs(modeller: _SegmentModeller, groups: list[tuple[int, int]]) -> np.ndarray:
     """Sine of the angle between each pair of adjacent lines (end lines included)."""
     pts = modeller.points
-    fit = _SpanFits(pts, groups)
+    fit = modeller.span_fits(groups)
     d = stack_last(np.cos(fit.psi), np.sin(fit.psi))
     # Oriented from each group's first towards its last point (as _oriented_line).
     ends = np.asarray(groups, dtype=int).reshape(-1, 2)
@@ -595,14 +597,18 @@ def vertex_distribution(
             break
         j = int(np.argmin(inner))
         groups[j : j + 2] = [(groups[j][0], groups[j + 1][1])]
-    points = _points(modeller.z, modeller.pose)
+    points = modeller.points
     slices = fit_slices(
         points, groups, modeller.config.exclusive_boundaries, modeller.config.boundary_window
     )
     offset_var = np.zeros(0)
     if modeller.config.coarseness > 0:
         var = coarseness_variances(
-            points, modeller.point_cov, slices, modeller.config.coarseness_significance
+            points,
+            modeller.point_cov,
+            slices,
+            modeller.config.coarseness_significance,
+            modeller.span_fits(slices),
         )
         offset_var = modeller.config.coarseness**2 * var
     if modeller.fast is not None:
@@ -634,7 +640,7 @@ def _first_order_vertices(
     pose, n = modeller.pose, modeller.n
     m = len(slices)
     n_in = 2 * n + offset_var.size
-    fit = _SpanFits(modeller.points, slices)
+    fit = modeller.span_fits(slices)
     # Lines k = 0..m+1: k = 0 left end, 1..m object lines, m + 1 right end. Each line's
     # Jacobian rows: d rho (n_in,) and d psi (n_in,); a point p (2,) and direction d (2,).
     j_rho = np.zeros((m + 2, n_in))
@@ -694,6 +700,7 @@ def coarseness_variances(
     point_cov: np.ndarray,
     slices: list[tuple[int, int]],
     significance: float,
+    fit: _SpanFits | None = None,
 ) -> np.ndarray:
     """Model-error variance [m^2] of each object line (thesis future work, 6.2).
 
@@ -706,10 +713,12 @@ def coarseness_variances(
     estimate their own poorly). The caller models it as a random offset of the line
     along its normal, propagated to the vertices like the measurement noise.
 
+    ``fit``: the lines' :class:`_SpanFits` of ``points`` over ``slices``, if already made.
+
     Returns:
         ``(m,)`` variances, one per line.
     """
-    fit = _SpanFits(points, slices)
+    fit = _SpanFits(points, slices) if fit is None else fit
     nx, ny = -np.sin(fit.psi)[:, None], np.cos(fit.psi)[:, None]
     d2 = (fit.ex * nx + fit.ey * ny) ** 2  # 0 on the padding
     cov = point_cov[fit.idx]

@@ -801,7 +801,7 @@ def _run_vertices(
     config, pose, n = modeller.config, modeller.pose, modeller.n
     _, point_cov = point_covariances(modeller.z, pose, modeller.sensor, modeller.lin)
     modeller.use_point_covariances(point_cov)
-    points = _points(modeller.z, pose)
+    points = modeller.points
     # Only lines that share a boundary beam (those of one model selection) are re-split;
     # the beams of lines observed through the association are already disjoint.
     slices: list[tuple[int, int]] = []
@@ -814,7 +814,9 @@ def _run_vertices(
         chunk = [g]
     offset_var = np.zeros(0)
     if config.coarseness > 0:
-        var = coarseness_variances(points, point_cov, slices, config.coarseness_significance)
+        var = coarseness_variances(
+            points, point_cov, slices, config.coarseness_significance, modeller.span_fits(slices)
+        )
         offset_var = config.coarseness**2 * var
     if modeller.fast is not None:
         mu, sigma = _first_order_vertices(modeller, slices, offset_var)
