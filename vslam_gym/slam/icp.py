@@ -274,6 +274,29 @@ def segment_offsets(qx, qy, ax, ay, abx, aby, inv_length2) -> tuple[np.ndarray, 
     return aqx - s * abx, aqy - s * aby
 
 
+def _segment_distance2(qx, qy, ax, ay, abx, aby, inv_length2) -> np.ndarray:
+    """Squared length ``dx^2 + dy^2`` [m^2] of :func:`segment_offsets`, for the hot paths.
+
+    The same operations in the same order (bit-identical), but in place in two
+    temporaries: ``qx - ax`` must already have the shape of the result (points ``(n, 1)``
+    against lines ``(L,)`` or ``(n, L)``).
+    """
+    dx = qx - ax
+    dy = qy - ay
+    s = dx * abx
+    tmp = dy * aby
+    s += tmp
+    s *= inv_length2
+    np.maximum(s, 0.0, out=s)  # _unit_clip
+    np.minimum(s, 1.0, out=s)
+    dx -= np.multiply(s, abx, out=tmp)
+    dy -= np.multiply(s, aby, out=tmp)
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return dx
+
+
 class _Lines:
     """Per-line constants of a model, as separate coordinate arrays ``(L,)`` (fast paths).
 
@@ -815,10 +838,9 @@ def _align(
                 break
             # Nearest visible segment of every point (R-22): dense (n, visible lines).
             sub = lines.subset(vis)
-            dx, dy = segment_offsets(
+            d2 = _segment_distance2(
                 qx[:, None], qy[:, None], sub.ax, sub.ay, sub.abx, sub.aby, sub.inv_length2
             )
-            d2 = dx * dx + dy * dy
             j = np.argmin(d2, axis=1)  # into the visible lines
             near = d2[np.arange(j.size), j] <= max_d2 if max_d2 < math.inf else None
             # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
@@ -1011,12 +1033,15 @@ class _Batch:
         """:meth:`_Lines.visible_from` of every alignment at its pose ``(A,)``: ``(A, L)``."""
         return _visible(*self.pair, px[:, None], py[:, None], theta[:, None], max_range, half_fov)
 
-    def nearest(self, vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Every point's nearest visible segment (R-22): index ``(T,)`` and squared distance."""
-        dx, dy = segment_offsets(self.qx[:, None], self.qy[:, None], *self.point)
-        d2 = np.where(vis[self.owner], dx * dx + dy * dy, np.inf)
-        j = np.argmin(d2, axis=1)
-        return j, d2[np.arange(j.size), j]
+    def nearest(self, vis: np.ndarray, distance: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Every point's nearest visible segment (R-22): index ``(T,)`` and squared distance.
+
+        The distance ``(T,)`` [m^2] only when ``distance`` is True (None otherwise).
+        """
+        d2 = _segment_distance2(self.qx[:, None], self.qy[:, None], *self.point)
+        np.putmask(d2, (~vis)[self.owner], np.inf)
+        j = d2.argmin(axis=1)
+        return j, d2[np.arange(j.size), j] if distance else None
 
     def line_of(self, j: np.ndarray) -> np.ndarray:
         """``(T, 5)``: ``[ax, ay, nx, ny, unknown]`` of every point's line ``j``."""
@@ -1161,7 +1186,7 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
         running = np.ones(act.size, dtype=bool)
         stop = _Stopper(act, running, reasons)
         vis = batch.visible(px[act], py[act], pth[act], max_range, half_fov)
-        j, d2 = batch.nearest(vis)
+        j, d2 = batch.nearest(vis, max_d2 < math.inf)
         fro = frozen[act]
         fro_pts = fro[batch.owner] if fro.any() else None
         if fro_pts is not None:
