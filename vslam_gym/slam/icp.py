@@ -785,16 +785,16 @@ def _association_keys(n: int) -> np.ndarray:
 _KEYS = np.zeros(0, dtype=np.uint64)
 
 
-def _association_hash(j: np.ndarray, keep: np.ndarray, position: np.ndarray | None = None):
+def _association_hash(j: np.ndarray, keep: np.ndarray, keys: np.ndarray | None = None):
     """The 64-bit hash codes of an association, one per point (sum them mod 2**64).
 
-    ``j``: every point's line, ``keep``: whether it is used, ``position``: its index in
-    its set (default ``0..n-1``). Integer sums do not depend on the order of addition,
-    so the hash of a set is the same however its points are summed.
+    ``j``: every point's line, ``keep``: whether it is used, ``keys``: every point's key
+    :func:`_association_keys` at its index in its set (default: the points are one set,
+    ``0..n-1``). Integer sums do not depend on the order of addition, so the hash of a
+    set is the same however its points are summed.
     """
-    keys = _association_keys(int(j.size if position is None else position.max() + 1))
     code = j.astype(np.uint64) * np.uint64(2) + keep + np.uint64(1)
-    return code * (keys if position is None else keys[position])
+    return code * (_association_keys(j.size) if keys is None else keys)
 
 
 def _align(
@@ -941,26 +941,36 @@ def _align(
 # ------------------------------------------------------------------------ batched ICP
 
 
-def _solve_spd3_many(h: np.ndarray, b: np.ndarray, max_condition: float):
+def _solve_spd3_many(h: np.ndarray, b: np.ndarray, config: IcpConfig):
     """:func:`_solve_spd3` of ``(A, 6)`` systems ``h`` with ``(A, 3)`` right-hand sides.
 
     Returns ``(t, ok)``: ``(A, 3)`` solutions and ``(A,)`` bool, False where ``H`` is not
-    positive definite or its condition number exceeds ``max_condition`` (``t`` is then
-    zero).
+    positive definite or its condition number exceeds ``config.max_condition`` (``t`` is
+    then zero). A singular ``H`` divides by zero: the caller ignores it (``np.errstate``).
     """
     m = h[:, _SYM3]  # (A, 3, 3)
     eig = np.linalg.eigvalsh(m)  # ascending
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ok = (eig[:, 0] > 0.0) & (eig[:, 2] / eig[:, 0] <= max_condition)
-    t = np.zeros_like(b)
-    if ok.any():
+    ok = (eig[:, 0] > 0.0) & (eig[:, 2] / eig[:, 0] <= config.max_condition)
+    if ok.all():
+        t = np.linalg.solve(m, b[:, :, None])[:, :, 0]
+    else:
+        t = np.zeros_like(b)
+        if not ok.any():
+            return t, ok
         t[ok] = np.linalg.solve(m[ok], b[ok][:, :, None])[:, :, 0]
-        ok &= np.all(np.isfinite(t), axis=1)
+    ok &= np.isfinite(t).all(axis=1)
     return t, ok
 
 
 _SYM3 = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 """Indices of ``[h00, h01, h02, h11, h12, h22]`` that make the symmetric ``3 x 3`` matrix."""
+
+
+def _offsets(counts: np.ndarray) -> np.ndarray:
+    """``(n,)`` where each of consecutive runs of ``counts`` ``(n,)`` starts (0 first)."""
+    starts = np.zeros(counts.size, dtype=np.intp)
+    np.cumsum(counts[:-1], out=starts[1:])
+    return starts
 
 
 class _Batch:
@@ -974,60 +984,67 @@ class _Batch:
     """
 
     _LINE_FIELDS = ("ax", "ay", "abx", "aby", "inv_length2")
+    _POINT_FIELDS = ("ax", "ay", "nx", "ny")  # and the unknown flag: the columns of per_line
 
     def __init__(self, sets, lines, unknowns, rows: np.ndarray) -> None:
-        self.n_lines = l_max = max(g.ax.size for g in lines)
+        sizes = np.array([g.ax.size for g in lines], dtype=np.intp)
+        self.n_lines = l_max = int(sizes.max())
         p = len(sets)
-        pair = {}
-        for name in (*self._LINE_FIELDS, "nx", "ny"):
-            arr = np.zeros((p, l_max))
-            for k, g in enumerate(lines):
-                arr[k, : g.ax.size] = getattr(g, name)
-            pair[name] = arr
-        unknown = np.zeros((p, l_max))
-        for k, u in enumerate(unknowns):
-            unknown[k, : u.size] = u
+        # Where every model's lines go in the (p * l_max) slots of the padded rows.
+        slots = np.arange(sizes.sum()) + np.repeat(np.arange(p) * l_max - _offsets(sizes), sizes)
+
+        def padded(values: list[np.ndarray]) -> np.ndarray:
+            flat = np.zeros(p * l_max)
+            flat[slots] = np.concatenate(values)
+            return flat
+
         # What a point needs of its nearest line, one row per (alignment, line): the
         # line's start [m], free-side normal and unknown flag (1.0 / 0.0).
-        self.per_line = np.stack(
-            [pair["ax"], pair["ay"], pair["nx"], pair["ny"], unknown], axis=2
-        ).reshape(p * l_max, 5)
+        self.per_line = stack_last(
+            *(padded([getattr(g, name) for g in lines]) for name in self._POINT_FIELDS),
+            padded(unknowns),
+        )
         self.rows = rows  # the running alignments
-        self.line_counts = np.array([lines[r].ax.size for r in rows.tolist()], dtype=np.intp)
+        self.line_counts = sizes[rows]
         # (fields, A, L): the line constants of _LINE_FIELDS per running alignment, and
         # (fields, T, L) the same per point, padded to the largest running line count.
-        self.pair = np.stack([pair[name][rows] for name in self._LINE_FIELDS])
+        self.pair = np.stack(
+            [padded([getattr(g, name) for g in lines]) for name in self._LINE_FIELDS]
+        ).reshape(len(self._LINE_FIELDS), p, l_max)[:, rows]
         self.counts = np.array([sets[r].shape[0] for r in rows.tolist()], dtype=np.intp)
         self.owner = np.repeat(np.arange(rows.size), self.counts)  # (T,) into rows
-        self.position = np.concatenate([np.arange(c) for c in self.counts.tolist()])
+        self.base = rows[self.owner] * l_max  # (T,) every point's first row of per_line
+        # Every point's association key at its index in its set (_association_hash).
+        position = np.arange(self.owner.size) - np.repeat(_offsets(self.counts), self.counts)
+        self.keys = _association_keys(int(self.counts.max()))[position]
         q = np.concatenate([sets[r] for r in rows.tolist()])
         self.qx, self.qy = q[:, 0].copy(), q[:, 1].copy()
         self.point = self.pair[:, self.owner]
         self.frozen_j = np.zeros(self.qx.size, dtype=np.intp)
         self.frozen_keep = np.zeros(self.qx.size, dtype=bool)
-        self._starts()
+        self.starts = _offsets(self.counts)
 
-    def _starts(self) -> None:
-        self.starts = np.concatenate([[0], np.cumsum(self.counts)[:-1]])
+    def columns(self, n: int) -> np.ndarray:
+        """An empty ``(T, n)`` array, to fill column by column for :meth:`sums`."""
+        return np.empty((self.qx.size, n))
 
-    def sums(self, columns: list[np.ndarray]) -> np.ndarray:
-        """``(A, len(columns))``: each ``(T,)`` column summed over every alignment's points."""
-        return np.add.reduceat(stack_last(*columns), self.starts, axis=0)
+    def sums(self, columns: np.ndarray) -> np.ndarray:
+        """``(A, n)``: each column of ``(T, n)`` :meth:`columns` summed per alignment."""
+        return np.add.reduceat(columns, self.starts, axis=0)
 
     def keep(self, running: np.ndarray) -> None:
         """Keep only the alignments where ``running`` ``(A,)`` is True."""
-        at = self.owner
-        pts = running[at]
+        pts = running[self.owner]
         self.rows, self.counts = self.rows[running], self.counts[running]
         self.line_counts = self.line_counts[running]
-        self.owner = (np.cumsum(running) - 1)[at[pts]]
-        self.position = self.position[pts]
+        self.owner = np.repeat(np.arange(self.rows.size), self.counts)
+        self.base, self.keys = self.base[pts], self.keys[pts]
         self.qx, self.qy = self.qx[pts], self.qy[pts]
         self.frozen_j, self.frozen_keep = self.frozen_j[pts], self.frozen_keep[pts]
         n_lines = int(self.line_counts.max())  # the padding the running ones need
         self.pair = self.pair[:, running, :n_lines]
         self.point = self.point[:, pts, :n_lines]
-        self._starts()
+        self.starts = _offsets(self.counts)
 
     def visible(self, px, py, theta, max_range, half_fov) -> np.ndarray:
         """:meth:`_Lines.visible_from` of every alignment at its pose ``(A,)``: ``(A, L)``."""
@@ -1045,11 +1062,11 @@ class _Batch:
 
     def line_of(self, j: np.ndarray) -> np.ndarray:
         """``(T, 5)``: ``[ax, ay, nx, ny, unknown]`` of every point's line ``j``."""
-        return self.per_line[self.rows[self.owner] * self.n_lines + j]
+        return self.per_line[self.base + j]
 
     def association_hash(self, j: np.ndarray, keep: np.ndarray) -> list[int]:
         """Per alignment the 64-bit hash of its association (:func:`_association_hash`)."""
-        return np.add.reduceat(_association_hash(j, keep, self.position), self.starts).tolist()
+        return np.add.reduceat(_association_hash(j, keep, self.keys), self.starts).tolist()
 
 
 def _align_batch(
@@ -1137,9 +1154,10 @@ class _Stopper:
         self.act, self.running, self.reasons = act, running, reasons
 
     def __call__(self, local: np.ndarray, reason: str) -> None:
-        self.running[local] = False
-        for r in self.act[local].tolist():
-            self.reasons[r] = reason
+        if local.size:
+            self.running[local] = False
+            for r in self.act[local].tolist():
+                self.reasons[r] = reason
 
 
 _SEQUENTIAL_AT_MOST = 3
@@ -1155,99 +1173,121 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
     px, py, pth, tfx, tfy, tfth, iterations, n_used, rms, frozen = state
     bounds, prior = inputs[3:]
     x0, y0, th0 = (float(v) for v in pose0)
-    finished: dict[int, IcpResult] = {}
     p = px.size
     max_d2 = config.max_correspondence_distance**2  # inf: every point may be used
     watches = [_CycleWatch(config) for _ in range(p)] if config.cycle_returns else None
     seen: list[dict[int, int]] | None = [{} for _ in range(p)] if config.freeze_on_cycle else None
     bounded = np.array([b is not None for b in bounds])
-    whitening = np.stack([np.eye(3) if b is None else b.whitening for b in bounds])
-    limit2 = np.array([0.0 if b is None else b.limit * b.limit for b in bounds])
-    for it in range(config.max_iterations):
-        act = batch.rows
-        if act.size <= _SEQUENTIAL_AT_MOST:
-            for k, r in enumerate(act.tolist()):
-                pts = batch.owner == k
-                progress = _Progress(
-                    it,
-                    batch.qx[pts],
-                    batch.qy[pts],
-                    (float(px[r]), float(py[r]), float(pth[r])),
-                    (float(tfx[r]), float(tfy[r]), float(tfth[r])),
-                    int(iterations[r]),
-                    int(n_used[r]),
-                    float(rms[r]),
-                    None if seen is None else seen[r],
-                    (batch.frozen_j[pts], batch.frozen_keep[pts]) if frozen[r] else None,
-                    None if watches is None else watches[r],
+    if bounded.any():
+        whitening = np.stack([np.eye(3) if b is None else b.whitening for b in bounds])
+        limit2 = np.array([0.0 if b is None else b.limit * b.limit for b in bounds])
+    # An alignment without used points (or lines) divides by zero: its rms, its centroid
+    # and its condition number are masked below.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for it in range(config.max_iterations):
+            act = batch.rows
+            if act.size <= _SEQUENTIAL_AT_MOST:
+                return _finish_one_by_one(
+                    batch, it, state, seen, watches, inputs, pose0, config, max_range, half_fov
                 )
-                finished[r] = _align_one(r, inputs, pose0, config, max_range, half_fov, progress)
-            return finished
-        running = np.ones(act.size, dtype=bool)
-        stop = _Stopper(act, running, reasons)
-        vis = batch.visible(px[act], py[act], pth[act], max_range, half_fov)
-        j, d2 = batch.nearest(vis, max_d2 < math.inf)
-        fro = frozen[act]
-        fro_pts = fro[batch.owner] if fro.any() else None
-        if fro_pts is not None:
-            j = np.where(fro_pts, batch.frozen_j, j)
-        line = batch.line_of(j)
-        nx, ny = line[:, 2], line[:, 3]
-        # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
-        e = (batch.qx - line[:, 0]) * nx + (batch.qy - line[:, 1]) * ny
-        keep = ~((line[:, 4] > 0.0) & (e <= 0.0))
-        if max_d2 < math.inf:
-            keep &= d2 <= max_d2
-        if fro_pts is not None:
-            keep = np.where(fro_pts, batch.frozen_keep, keep)
-        blind = ~fro & ~vis.any(axis=1)
-        keys = batch.association_hash(j, keep) if seen is not None or watches else None
-        if seen is not None:
-            for k, r in enumerate(act.tolist()):
-                if fro[k] or blind[k]:
-                    continue
-                earlier = seen[r].get(keys[k])
-                if earlier is not None and earlier < it - 1:
-                    frozen[r] = True
-                    pts = batch.owner == k
-                    batch.frozen_j[pts], batch.frozen_keep[pts] = j[pts], keep[pts]
-                seen[r][keys[k]] = it
-        kf = keep.astype(float)
-        e = e * kf
-        sums = batch.sums([kf, e * e, batch.qx * kf, batch.qy * kf])
-        used = sums[:, 0]
-        with np.errstate(divide="ignore", invalid="ignore"):
+            running = np.ones(act.size, dtype=bool)
+            stop = _Stopper(act, running, reasons)
+            vis = batch.visible(px[act], py[act], pth[act], max_range, half_fov)
+            j, d2 = batch.nearest(vis, max_d2 < math.inf)
+            fro = frozen[act]
+            fro_pts = fro[batch.owner] if fro.any() else None
+            if fro_pts is not None:
+                j = np.where(fro_pts, batch.frozen_j, j)
+            line = batch.line_of(j)
+            nx, ny = line[:, 2], line[:, 3]
+            # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
+            e = (batch.qx - line[:, 0]) * nx + (batch.qy - line[:, 1]) * ny
+            keep = ~((line[:, 4] > 0.0) & (e <= 0.0))
+            if max_d2 < math.inf:
+                keep &= d2 <= max_d2
+            if fro_pts is not None:
+                keep = np.where(fro_pts, batch.frozen_keep, keep)
+            blind = ~fro & ~vis.any(axis=1)
+            keys = batch.association_hash(j, keep) if seen is not None or watches else None
+            if seen is not None:
+                for k, r in enumerate(act.tolist()):
+                    if fro[k] or blind[k]:
+                        continue
+                    earlier = seen[r].get(keys[k])
+                    if earlier is not None and earlier < it - 1:
+                        frozen[r] = True
+                        pts = batch.owner == k
+                        batch.frozen_j[pts], batch.frozen_keep[pts] = j[pts], keep[pts]
+                    seen[r][keys[k]] = it
+            columns = batch.columns(4)
+            kf = columns[:, 0]
+            np.copyto(kf, keep)  # 1.0 / 0.0
+            e *= kf
+            np.multiply(e, e, out=columns[:, 1])
+            np.multiply(batch.qx, kf, out=columns[:, 2])
+            np.multiply(batch.qy, kf, out=columns[:, 3])
+            sums = batch.sums(columns)
+            used = sums[:, 0]
             rms_it = np.where(used > 0, np.sqrt(sums[:, 1] / used), np.inf)
-        n_used[act] = np.where(blind, 0, used.astype(np.intp))
-        rms[act] = np.where(blind, np.inf, rms_it)
-        go = ~blind & (used >= config.min_points)
-        stop(np.flatnonzero(~go), "too_few_points")
-        if watches is not None:
-            for k, r in enumerate(act.tolist()):
-                state_r = ((px[r], py[r], pth[r]), tfx[r], tfy[r], tfth[r], n_used[r], rms[r])
-                if go[k] and watches[r].cycled(keys[k], state_r):
-                    # Where the endless alignment would stop: its pose after the last
-                    # iteration, and the used points and rms at the start of that one.
-                    (px[r], py[r], pth[r]), tfx[r], tfy[r], tfth[r] = watches[r].state_at(
-                        config.max_iterations
-                    )[:4]
-                    n_used[r], rms[r] = watches[r].state_at(config.max_iterations - 1)[4:]
-                    go[k] = False
-                    stop(np.array([k]), "cycle")
-        if go.any():
-            _step(batch, act, go, running, stop, sums, (nx, ny, e, kf), state, pose0, config, prior)
-            upd = act[running]  # stepped and not converged
-            check = upd[bounded[upd]]
-            if check.size:
-                dth = np.mod(tfth[check] + math.pi, TWO_PI) - math.pi
-                d = np.stack([px[check] - x0, py[check] - y0, dth], axis=1)
-                w = np.einsum("kij,kj->ki", whitening[check], d)
-                out = np.einsum("ki,ki->k", w, w) > limit2[check]
-                stop(np.searchsorted(act, check[out]), "out_of_bound")
-        if not running.all():
-            if not running.any():
-                return finished
-            batch.keep(running)
+            n_used[act] = np.where(blind, 0, used.astype(np.intp))
+            rms[act] = np.where(blind, np.inf, rms_it)
+            go = ~blind & (used >= config.min_points)
+            stop(np.flatnonzero(~go), "too_few_points")
+            if watches is not None:
+                for k, r in enumerate(act.tolist()):
+                    state_r = ((px[r], py[r], pth[r]), tfx[r], tfy[r], tfth[r], n_used[r], rms[r])
+                    if go[k] and watches[r].cycled(keys[k], state_r):
+                        # Where the endless alignment would stop: its pose after the last
+                        # iteration, and the used points and rms at the start of that one.
+                        (px[r], py[r], pth[r]), tfx[r], tfy[r], tfth[r] = watches[r].state_at(
+                            config.max_iterations
+                        )[:4]
+                        n_used[r], rms[r] = watches[r].state_at(config.max_iterations - 1)[4:]
+                        go[k] = False
+                        stop(np.array([k]), "cycle")
+            if go.any():
+                terms = (nx, ny, e, kf)
+                _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prior)
+                if bounded.any():
+                    upd = act[running]  # stepped and not converged
+                    check = upd[bounded[upd]]
+                    dth = np.mod(tfth[check] + math.pi, TWO_PI) - math.pi
+                    d = np.stack([px[check] - x0, py[check] - y0, dth], axis=1)
+                    w = np.einsum("kij,kj->ki", whitening[check], d)
+                    out = np.einsum("ki,ki->k", w, w) > limit2[check]
+                    stop(np.searchsorted(act, check[out]), "out_of_bound")
+            if not running.all():
+                if not running.any():
+                    return {}
+                batch.keep(running)
+    return {}
+
+
+def _finish_one_by_one(
+    batch, it, state, seen, watches, inputs, pose0, config, max_range, half_fov
+) -> dict[int, IcpResult]:
+    """:func:`_align` of each alignment still running in ``batch``, from iteration ``it``.
+
+    Returns their results by index.
+    """
+    px, py, pth, tfx, tfy, tfth, iterations, n_used, rms, frozen = state
+    finished: dict[int, IcpResult] = {}
+    for k, r in enumerate(batch.rows.tolist()):
+        pts = batch.owner == k
+        progress = _Progress(
+            it,
+            batch.qx[pts],
+            batch.qy[pts],
+            (float(px[r]), float(py[r]), float(pth[r])),
+            (float(tfx[r]), float(tfy[r]), float(tfth[r])),
+            int(iterations[r]),
+            int(n_used[r]),
+            float(rms[r]),
+            None if seen is None else seen[r],
+            (batch.frozen_j[pts], batch.frozen_keep[pts]) if frozen[r] else None,
+            None if watches is None else watches[r],
+        )
+        finished[r] = _align_one(r, inputs, pose0, config, max_range, half_fov, progress)
     return finished
 
 
@@ -1255,50 +1295,58 @@ def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prio
     """One least-squares step of the alignments ``act[go]``; stops the singular and converged.
 
     ``terms``: every point's line normal, signed distance and use ``(nx, ny, e, kf)``;
-    ``prior``: the upper triangle of ``prior_weight`` or None.
+    ``prior``: the upper triangle of ``prior_weight`` or None. Divisions by zero (an
+    alignment without used points) must be ignored by the caller (``np.errstate``).
     """
     nx, ny, e, kf = terms
     px, py, pth, tfx, tfy, tfth, iterations = state[:7]
     x0, y0, th0 = pose0
     used = sums[:, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cx, cy = sums[:, 2] / used, sums[:, 3] / used
+    cx, cy = sums[:, 2] / used, sums[:, 3] / used
     if config.centre_on_centroid:
         ox, oy = np.where(go, cx, 0.0), np.where(go, cy, 0.0)
     else:
         ox, oy = np.zeros_like(cx), np.zeros_like(cy)
     owner = batch.owner
-    ux = (batch.qx - ox[owner]) * kf
-    uy = (batch.qy - oy[owner]) * kf
+    columns = batch.columns(12 if config.point_to_line else 6)
+    ux = np.multiply(batch.qx - ox[owner], kf, out=columns[:, 3])
+    uy = np.multiply(batch.qy - oy[owner], kf, out=columns[:, 4])
     nx, ny = nx * kf, ny * kf
     # Rows a_i = n_i^T J_i with J_i = [[1, 0, -y], [0, 1, x]] (4.3.9) in the solving
     # frame. With d_i = -e_i n_i (4.3.15), b = sum J^T d = -sum e_i a_i in both forms.
     a3 = ux * ny - uy * nx
-    columns = [e * nx, e * ny, e * a3, ux, uy, ux * ux + uy * uy]
+    np.multiply(e, nx, out=columns[:, 0])
+    np.multiply(e, ny, out=columns[:, 1])
+    np.multiply(e, a3, out=columns[:, 2])
+    np.add(ux * ux, uy * uy, out=columns[:, 5])
     if config.point_to_line:  # H = sum a_i^T a_i
-        columns += [nx * nx, nx * ny, nx * a3, ny * ny, ny * a3, a3 * a3]
+        products = ((nx, nx), (nx, ny), (nx, a3), (ny, ny), (ny, a3), (a3, a3))
+        for k, (u, v) in enumerate(products, start=6):
+            np.multiply(u, v, out=columns[:, k])
     s = batch.sums(columns)
-    rhs = -s[:, :3]
-    # H = sum J_i^T J_i (4.3.10): the thesis form, and the point-to-line fallback.
-    thesis = stack_last(used, np.zeros_like(used), -s[:, 4], used, s[:, 3], s[:, 5])
-    h_line = s[:, 6:12] if config.point_to_line else None
+    # The systems H t = b of every alignment: the point-to-line form first (when used),
+    # then H = sum J_i^T J_i (4.3.10), the thesis form and the point-to-line fallback.
+    a = used.size
+    forms = 2 if config.point_to_line else 1
+    h, rhs = np.empty((forms, a, 6)), np.empty((forms, a, 3))
+    np.negative(s[:, :3], out=rhs[0])
+    if config.point_to_line:
+        h[0] = s[:, 6:12]
+    thesis = h[-1]
+    thesis[:, 0], thesis[:, 1], thesis[:, 3] = used, 0.0, used
+    np.negative(s[:, 4], out=thesis[:, 2])
+    thesis[:, 4], thesis[:, 5] = s[:, 3], s[:, 5]
     if prior is not None:
         x, y = px[act], py[act]
         dth = np.mod(tfth[act] + math.pi, TWO_PI) - math.pi
         hp, gp = _prior_terms(prior, oy - y, x - ox, x - x0, y - y0, dth)
-        hp = stack_last(*(np.broadcast_to(v, x.shape) for v in hp))
-        rhs = rhs - stack_last(*gp)
-        thesis = thesis + hp
-        h_line = None if h_line is None else h_line + hp
-    if h_line is not None:  # H = sum a_i^T a_i, both forms solved in one call
-        both, ok_both = _solve_spd3_many(
-            np.concatenate([h_line, thesis]), np.concatenate([rhs, rhs]), config.max_condition
-        )
-        a = used.size
-        t = np.where(ok_both[:a, None], both[:a], both[a:])
-        ok = ok_both[:a] | ok_both[a:]
-    else:
-        t, ok = _solve_spd3_many(thesis, rhs, config.max_condition)
+        h += stack_last(*(np.broadcast_to(v, x.shape) for v in hp))
+        rhs[0] -= stack_last(*gp)
+    rhs[1:] = rhs[0]
+    t, ok = _solve_spd3_many(h.reshape(forms * a, 6), rhs.reshape(forms * a, 3), config)
+    if forms == 2:  # the point-to-line solution where it exists
+        t = np.where(ok[:a, None], t[:a], t[a:])
+        ok = ok[:a] | ok[a:]
     stop(np.flatnonzero(go & ~ok), "singular")
     g = np.flatnonzero(go & ok)
     if g.size == 0:
@@ -1312,13 +1360,13 @@ def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prio
     tx = t[g, 0] + og_x - (cos * og_x - sin * og_y)
     ty = t[g, 1] + og_y - (sin * og_x + cos * og_y)
     # Move the points of the stepped alignments (4.3.4); the others keep theirs.
-    c_all, s_all = np.ones(go.size), np.zeros(go.size)
-    tx_all, ty_all = np.zeros(go.size), np.zeros(go.size)
-    c_all[g], s_all[g], tx_all[g], ty_all[g] = cos, sin, tx, ty
-    c_p, s_p = c_all[owner], s_all[owner]
+    move = np.zeros((4, go.size))  # per alignment [cos, sin, t_x, t_y]: no move
+    move[0] = 1.0
+    move[:, g] = cos, sin, tx, ty
+    c_p, s_p, tx_p, ty_p = move[:, owner]
     batch.qx, batch.qy = (
-        c_p * batch.qx - s_p * batch.qy + tx_all[owner],
-        s_p * batch.qx + c_p * batch.qy + ty_all[owner],
+        c_p * batch.qx - s_p * batch.qy + tx_p,
+        s_p * batch.qx + c_p * batch.qy + ty_p,
     )
     fx, fy = tfx[rows], tfy[rows]
     tfx[rows] = cos * fx - sin * fy + tx  # (4.3.11)
