@@ -941,14 +941,13 @@ def _align(
 # ------------------------------------------------------------------------ batched ICP
 
 
-def _solve_spd3_many(h: np.ndarray, b: np.ndarray, config: IcpConfig):
-    """:func:`_solve_spd3` of ``(A, 6)`` systems ``h`` with ``(A, 3)`` right-hand sides.
+def _solve_spd3_many(m: np.ndarray, b: np.ndarray, config: IcpConfig):
+    """:func:`_solve_spd3` of ``(A, 3, 3)`` symmetric systems ``m`` with ``(A, 3)`` right sides.
 
     Returns ``(t, ok)``: ``(A, 3)`` solutions and ``(A,)`` bool, False where ``H`` is not
     positive definite or its condition number exceeds ``config.max_condition`` (``t`` is
     then zero). A singular ``H`` divides by zero: the caller ignores it (``np.errstate``).
     """
-    m = h[:, _SYM3]  # (A, 3, 3)
     eig = np.linalg.eigvalsh(m)  # ascending
     ok = (eig[:, 0] > 0.0) & (eig[:, 2] / eig[:, 0] <= config.max_condition)
     if ok.all():
@@ -1024,13 +1023,17 @@ class _Batch:
         self.frozen_keep = np.zeros(self.qx.size, dtype=bool)
         self.starts = _offsets(self.counts)
 
-    def columns(self, n: int) -> np.ndarray:
-        """An empty ``(T, n)`` array, to fill column by column for :meth:`sums`."""
-        return np.empty((self.qx.size, n))
+    def terms(self, n: int) -> np.ndarray:
+        """An empty ``(n, T)`` array, to fill row by row with per-point terms for :meth:`sums`."""
+        return np.empty((n, self.qx.size))
 
-    def sums(self, columns: np.ndarray) -> np.ndarray:
-        """``(A, n)``: each column of ``(T, n)`` :meth:`columns` summed per alignment."""
-        return np.add.reduceat(columns, self.starts, axis=0)
+    def sums(self, terms: np.ndarray) -> np.ndarray:
+        """``(n, A)``: each row of ``(n, T)`` :meth:`terms` summed over every alignment's points.
+
+        ``np.add.reduceat`` sums every run by itself (pairwise): the sum of a run does not
+        depend on the other rows or on the memory layout.
+        """
+        return np.add.reduceat(terms, self.starts, axis=1)
 
     def keep(self, running: np.ndarray) -> None:
         """Keep only the alignments where ``running`` ``(A,)`` is True."""
@@ -1219,16 +1222,16 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
                         pts = batch.owner == k
                         batch.frozen_j[pts], batch.frozen_keep[pts] = j[pts], keep[pts]
                     seen[r][keys[k]] = it
-            columns = batch.columns(4)
-            kf = columns[:, 0]
+            terms = batch.terms(4)
+            kf = terms[0]
             np.copyto(kf, keep)  # 1.0 / 0.0
             e *= kf
-            np.multiply(e, e, out=columns[:, 1])
-            np.multiply(batch.qx, kf, out=columns[:, 2])
-            np.multiply(batch.qy, kf, out=columns[:, 3])
-            sums = batch.sums(columns)
-            used = sums[:, 0]
-            rms_it = np.where(used > 0, np.sqrt(sums[:, 1] / used), np.inf)
+            np.multiply(e, e, out=terms[1])
+            np.multiply(batch.qx, kf, out=terms[2])
+            np.multiply(batch.qy, kf, out=terms[3])
+            sums = batch.sums(terms)
+            used = sums[0]
+            rms_it = np.where(used > 0, np.sqrt(sums[1] / used), np.inf)
             n_used[act] = np.where(blind, 0, used.astype(np.intp))
             rms[act] = np.where(blind, np.inf, rms_it)
             go = ~blind & (used >= config.min_points)
@@ -1246,8 +1249,8 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
                         go[k] = False
                         stop(np.array([k]), "cycle")
             if go.any():
-                terms = (nx, ny, e, kf)
-                _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prior)
+                point_terms = (nx, ny, e, kf)
+                _step(batch, act, go, running, stop, sums, point_terms, state, pose0, config, prior)
                 if bounded.any():
                     upd = act[running]  # stepped and not converged
                     check = upd[bounded[upd]]
@@ -1291,60 +1294,70 @@ def _finish_one_by_one(
     return finished
 
 
+_TERM_ROWS = 8
+"""Rows of :func:`_step`'s per-point terms ``(8 or 17, T)`` (``e`` the signed distance,
+``w = [n_x, n_y, a_3]`` the row ``a_i`` and ``u`` the point in the solving frame, all
+zero for the unused points): ``e w`` (3 rows), ``0``, ``1``, ``u_x``, ``-u_y``,
+``|u|^2``, and for the point-to-line form ``w w^T`` (9 rows, row-major)."""
+
+_SYSTEM_ROWS = np.array(
+    [
+        [*range(_TERM_ROWS, _TERM_ROWS + 9), 0, 1, 2],  # H = sum a_i^T a_i
+        [4, 3, 6, 3, 4, 5, 6, 5, 7, 0, 1, 2],  # H = sum J_i^T J_i (4.3.10)
+    ]
+)
+"""Per form, the rows of the summed terms that make ``H`` (3 x 3, row-major) and ``-b``."""
+
+
 def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prior) -> None:
     """One least-squares step of the alignments ``act[go]``; stops the singular and converged.
 
-    ``terms``: every point's line normal, signed distance and use ``(nx, ny, e, kf)``;
-    ``prior``: the upper triangle of ``prior_weight`` or None. Divisions by zero (an
-    alignment without used points) must be ignored by the caller (``np.errstate``).
+    ``sums``: the per-alignment sums of :func:`_iterate` (used points, squared distances,
+    ``x``, ``y``); ``terms``: every point's line normal, signed distance and use ``(nx,
+    ny, e, kf)``; ``prior``: the upper triangle of ``prior_weight`` or None. Divisions
+    by zero (an alignment without used points) must be ignored by the caller
+    (``np.errstate``).
     """
     nx, ny, e, kf = terms
     px, py, pth, tfx, tfy, tfth, iterations = state[:7]
     x0, y0, th0 = pose0
-    used = sums[:, 0]
-    cx, cy = sums[:, 2] / used, sums[:, 3] / used
+    used = sums[0]
+    cx, cy = sums[2] / used, sums[3] / used
     if config.centre_on_centroid:
         ox, oy = np.where(go, cx, 0.0), np.where(go, cy, 0.0)
     else:
         ox, oy = np.zeros_like(cx), np.zeros_like(cy)
     owner = batch.owner
-    columns = batch.columns(12 if config.point_to_line else 6)
-    ux = np.multiply(batch.qx - ox[owner], kf, out=columns[:, 3])
-    uy = np.multiply(batch.qy - oy[owner], kf, out=columns[:, 4])
-    nx, ny = nx * kf, ny * kf
+    per_point = batch.terms(_TERM_ROWS + 9 if config.point_to_line else _TERM_ROWS)
+    ux = np.multiply(batch.qx - ox[owner], kf, out=per_point[5])
+    uy = (batch.qy - oy[owner]) * kf
+    np.negative(uy, out=per_point[6])
+    w = np.empty((3, ux.size))
+    nx, ny = np.multiply(nx, kf, out=w[0]), np.multiply(ny, kf, out=w[1])
     # Rows a_i = n_i^T J_i with J_i = [[1, 0, -y], [0, 1, x]] (4.3.9) in the solving
     # frame. With d_i = -e_i n_i (4.3.15), b = sum J^T d = -sum e_i a_i in both forms.
-    a3 = ux * ny - uy * nx
-    np.multiply(e, nx, out=columns[:, 0])
-    np.multiply(e, ny, out=columns[:, 1])
-    np.multiply(e, a3, out=columns[:, 2])
-    np.add(ux * ux, uy * uy, out=columns[:, 5])
+    np.subtract(ux * ny, uy * nx, out=w[2])
+    np.multiply(e, w, out=per_point[:3])
+    per_point[3], per_point[4] = 0.0, kf
+    np.add(ux * ux, uy * uy, out=per_point[7])
     if config.point_to_line:  # H = sum a_i^T a_i
-        products = ((nx, nx), (nx, ny), (nx, a3), (ny, ny), (ny, a3), (a3, a3))
-        for k, (u, v) in enumerate(products, start=6):
-            np.multiply(u, v, out=columns[:, k])
-    s = batch.sums(columns)
-    # The systems H t = b of every alignment: the point-to-line form first (when used),
-    # then H = sum J_i^T J_i (4.3.10), the thesis form and the point-to-line fallback.
+        np.multiply(w[:, None], w[None], out=per_point[_TERM_ROWS:].reshape(3, 3, -1))
+    # (forms, A, 12): the systems of every alignment, the point-to-line form first (when
+    # used), then H = sum J_i^T J_i (4.3.10), the thesis form and the fallback.
     a = used.size
-    forms = 2 if config.point_to_line else 1
-    h, rhs = np.empty((forms, a, 6)), np.empty((forms, a, 3))
-    np.negative(s[:, :3], out=rhs[0])
-    if config.point_to_line:
-        h[0] = s[:, 6:12]
-    thesis = h[-1]
-    thesis[:, 0], thesis[:, 1], thesis[:, 3] = used, 0.0, used
-    np.negative(s[:, 4], out=thesis[:, 2])
-    thesis[:, 4], thesis[:, 5] = s[:, 3], s[:, 5]
+    forms = _SYSTEM_ROWS if config.point_to_line else _SYSTEM_ROWS[1:]
+    system = batch.sums(per_point)[forms].transpose(0, 2, 1).copy()
     if prior is not None:
         x, y = px[act], py[act]
         dth = np.mod(tfth[act] + math.pi, TWO_PI) - math.pi
         hp, gp = _prior_terms(prior, oy - y, x - ox, x - x0, y - y0, dth)
-        h += stack_last(*(np.broadcast_to(v, x.shape) for v in hp))
-        rhs[0] -= stack_last(*gp)
-    rhs[1:] = rhs[0]
-    t, ok = _solve_spd3_many(h.reshape(forms * a, 6), rhs.reshape(forms * a, 3), config)
-    if forms == 2:  # the point-to-line solution where it exists
+        hp = stack_last(*(np.broadcast_to(v, x.shape) for v in hp))
+        system[..., :9] += hp[:, _SYM3].reshape(a, 9)
+        system[..., 9:] += stack_last(*gp)  # b = -(sum e_i a_i + g)
+    t, ok = _solve_spd3_many(
+        system[..., :9].reshape(-1, 3, 3), -system[..., 9:].reshape(-1, 3), config
+    )
+    if config.point_to_line:  # its solution where it exists
         t = np.where(ok[:a, None], t[:a], t[a:])
         ok = ok[:a] | ok[a:]
     stop(np.flatnonzero(go & ~ok), "singular")
