@@ -863,7 +863,8 @@ def _align(
             e = (qx - lines.ax[j]) * nx + (qy - lines.ay[j]) * ny
         n_used = int(np.count_nonzero(keep))
         if n_used < q.shape[0]:
-            e, nx, ny, ux, uy = e[keep], nx[keep], ny[keep], qx[keep], qy[keep]
+            (at,) = keep.nonzero()
+            e, nx, ny, ux, uy = e.take(at), nx.take(at), ny.take(at), qx.take(at), qy.take(at)
         else:
             ux, uy = qx, qy
         rms = math.sqrt(float(e @ e) / n_used) if n_used else np.inf
@@ -950,11 +951,12 @@ def _solve_spd3_many(m: np.ndarray, b: np.ndarray, config: IcpConfig):
     """
     eig = np.linalg.eigvalsh(m)  # ascending
     ok = (eig[:, 0] > 0.0) & (eig[:, 2] / eig[:, 0] <= config.max_condition)
-    if ok.all():
+    n_ok = np.count_nonzero(ok)
+    if n_ok == ok.size:
         t = np.linalg.solve(m, b[:, :, None])[:, :, 0]
     else:
         t = np.zeros_like(b)
-        if not ok.any():
+        if not n_ok:
             return t, ok
         t[ok] = np.linalg.solve(m[ok], b[ok][:, :, None])[:, :, 0]
     ok &= np.isfinite(t).all(axis=1)
@@ -963,6 +965,15 @@ def _solve_spd3_many(m: np.ndarray, b: np.ndarray, config: IcpConfig):
 
 _SYM3 = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 """Indices of ``[h00, h01, h02, h11, h12, h22]`` that make the symmetric ``3 x 3`` matrix."""
+
+
+def _take_lines(table: np.ndarray, index: np.ndarray, n_lines: int) -> np.ndarray:
+    """``table[:, index, :n_lines]`` of a ``(fields, N, L)`` table, C-contiguous.
+
+    (``take`` then slice: numpy's fancy indexing of a middle axis is several times slower.)
+    """
+    out = table.take(index, axis=1)
+    return out if n_lines == out.shape[2] else np.ascontiguousarray(out[:, :, :n_lines])
 
 
 def _offsets(counts: np.ndarray) -> np.ndarray:
@@ -1018,7 +1029,7 @@ class _Batch:
         self.keys = _association_keys(int(self.counts.max()))[position]
         q = np.concatenate([sets[r] for r in rows.tolist()])
         self.qx, self.qy = q[:, 0].copy(), q[:, 1].copy()
-        self.point = self.pair[:, self.owner]
+        self.point = self.pair.take(self.owner, axis=1)
         self.frozen_j = np.zeros(self.qx.size, dtype=np.intp)
         self.frozen_keep = np.zeros(self.qx.size, dtype=bool)
         self.starts = _offsets(self.counts)
@@ -1037,16 +1048,17 @@ class _Batch:
 
     def keep(self, running: np.ndarray) -> None:
         """Keep only the alignments where ``running`` ``(A,)`` is True."""
-        pts = running[self.owner]
-        self.rows, self.counts = self.rows[running], self.counts[running]
-        self.line_counts = self.line_counts[running]
-        self.owner = np.repeat(np.arange(self.rows.size), self.counts)
-        self.base, self.keys = self.base[pts], self.keys[pts]
-        self.qx, self.qy = self.qx[pts], self.qy[pts]
-        self.frozen_j, self.frozen_keep = self.frozen_j[pts], self.frozen_keep[pts]
+        (kept,) = running.nonzero()
+        (pts,) = running[self.owner].nonzero()
+        self.rows, self.counts = self.rows.take(kept), self.counts.take(kept)
+        self.line_counts = self.line_counts.take(kept)
+        self.owner = np.repeat(np.arange(kept.size), self.counts)
+        self.base, self.keys = self.base.take(pts), self.keys.take(pts)
+        self.qx, self.qy = self.qx.take(pts), self.qy.take(pts)
+        self.frozen_j, self.frozen_keep = self.frozen_j.take(pts), self.frozen_keep.take(pts)
         n_lines = int(self.line_counts.max())  # the padding the running ones need
-        self.pair = self.pair[:, running, :n_lines]
-        self.point = self.point[:, pts, :n_lines]
+        self.pair = _take_lines(self.pair, kept, n_lines)
+        self.point = _take_lines(self.point, pts, n_lines)
         self.starts = _offsets(self.counts)
 
     def visible(self, px, py, theta, max_range, half_fov) -> np.ndarray:
@@ -1059,13 +1071,13 @@ class _Batch:
         The distance ``(T,)`` [m^2] only when ``distance`` is True (None otherwise).
         """
         d2 = _segment_distance2(self.qx[:, None], self.qy[:, None], *self.point)
-        np.putmask(d2, (~vis)[self.owner], np.inf)
+        np.putmask(d2, (~vis).take(self.owner, axis=0), np.inf)
         j = d2.argmin(axis=1)
         return j, d2[np.arange(j.size), j] if distance else None
 
     def line_of(self, j: np.ndarray) -> np.ndarray:
         """``(T, 5)``: ``[ax, ay, nx, ny, unknown]`` of every point's line ``j``."""
-        return self.per_line[self.base + j]
+        return self.per_line.take(self.base + j, axis=0)
 
     def association_hash(self, j: np.ndarray, keep: np.ndarray) -> list[int]:
         """Per alignment the 64-bit hash of its association (:func:`_association_hash`)."""
@@ -1198,7 +1210,7 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
             vis = batch.visible(px[act], py[act], pth[act], max_range, half_fov)
             j, d2 = batch.nearest(vis, max_d2 < math.inf)
             fro = frozen[act]
-            fro_pts = fro[batch.owner] if fro.any() else None
+            fro_pts = fro[batch.owner] if np.count_nonzero(fro) else None
             if fro_pts is not None:
                 j = np.where(fro_pts, batch.frozen_j, j)
             line = batch.line_of(j)
@@ -1235,7 +1247,7 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
             n_used[act] = np.where(blind, 0, used.astype(np.intp))
             rms[act] = np.where(blind, np.inf, rms_it)
             go = ~blind & (used >= config.min_points)
-            stop(np.flatnonzero(~go), "too_few_points")
+            stop((~go).nonzero()[0], "too_few_points")
             if watches is not None:
                 for k, r in enumerate(act.tolist()):
                     state_r = ((px[r], py[r], pth[r]), tfx[r], tfy[r], tfth[r], n_used[r], rms[r])
@@ -1248,7 +1260,7 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
                         n_used[r], rms[r] = watches[r].state_at(config.max_iterations - 1)[4:]
                         go[k] = False
                         stop(np.array([k]), "cycle")
-            if go.any():
+            if np.count_nonzero(go):
                 point_terms = (nx, ny, e, kf)
                 _step(batch, act, go, running, stop, sums, point_terms, state, pose0, config, prior)
                 if bounded.any():
@@ -1259,8 +1271,9 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
                     w = np.einsum("kij,kj->ki", whitening[check], d)
                     out = np.einsum("ki,ki->k", w, w) > limit2[check]
                     stop(np.searchsorted(act, check[out]), "out_of_bound")
-            if not running.all():
-                if not running.any():
+            n_running = np.count_nonzero(running)
+            if n_running < running.size:
+                if not n_running:
                     return {}
                 batch.keep(running)
     return {}
@@ -1360,8 +1373,8 @@ def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prio
     if config.point_to_line:  # its solution where it exists
         t = np.where(ok[:a, None], t[:a], t[a:])
         ok = ok[:a] | ok[a:]
-    stop(np.flatnonzero(go & ~ok), "singular")
-    g = np.flatnonzero(go & ok)
+    stop((go & ~ok).nonzero()[0], "singular")
+    (g,) = (go & ok).nonzero()
     if g.size == 0:
         return
     rows = act[g]
@@ -1376,7 +1389,7 @@ def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prio
     move = np.zeros((4, go.size))  # per alignment [cos, sin, t_x, t_y]: no move
     move[0] = 1.0
     move[:, g] = cos, sin, tx, ty
-    c_p, s_p, tx_p, ty_p = move[:, owner]
+    c_p, s_p, tx_p, ty_p = move.take(owner, axis=1)
     batch.qx, batch.qy = (
         c_p * batch.qx - s_p * batch.qy + tx_p,
         s_p * batch.qx + c_p * batch.qy + ty_p,
