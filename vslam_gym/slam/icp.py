@@ -308,25 +308,28 @@ class _Lines:
     def __init__(self, model: LandmarkModel) -> None:
         # Line j joins vertices j and j + 1 (a closed polygon's last one: k - 1 and 0), as
         # model.line_vertices(): its ends by slicing instead of fancy indexing.
-        mean, n = model.mean, model.n_lines
-        a = mean[:n]
-        b = np.concatenate([mean[1:], mean[:1]]) if model.closed else mean[1 : n + 1]
-        ab = b - a
-        self.ax, self.ay = a[:, 0].copy(), a[:, 1].copy()
-        self.abx, self.aby = ab[:, 0].copy(), ab[:, 1].copy()
+        # Coordinates as rows (2, k): each coordinate array below is a contiguous row.
+        mean, n = model.mean.T, model.n_lines
+        a = mean[:, :n]
+        b = np.concatenate([mean[:, 1:], mean[:, :1]], axis=1) if model.closed else mean[:, 1:]
+        self.ax, self.ay = a.copy()
+        self.abx, self.aby = b[:, :n] - a
         length2 = self.abx * self.abx + self.aby * self.aby
-        ok = length2 > 0
-        # Zero-length lines get zero normals and inverse lengths; they are never visible.
-        self.inv_length2 = np.divide(1.0, length2, out=np.zeros_like(length2), where=ok)
+        if np.count_nonzero(length2 > 0) == n:
+            self.inv_length2 = 1.0 / length2
+        else:  # zero-length lines get zero normals and inverse lengths: never visible
+            self.inv_length2 = np.divide(
+                1.0, length2, out=np.zeros_like(length2), where=length2 > 0
+            )
         inv_length = np.sqrt(self.inv_length2)
         # Free-side (right-hand) unit normal n = [sin psi, -cos psi] (4.3.12).
         self.nx, self.ny = self.aby * inv_length, -self.abx * inv_length
         self._subsets: dict[bytes, _Lines] = {}
         # A circle around every line (centre of the vertices' bounding box), for the
         # shortcuts of visible_from.
-        lo, hi = mean.min(axis=0), mean.max(axis=0)
-        self._centre = (0.5 * float(lo[0] + hi[0]), 0.5 * float(lo[1] + hi[1]))
-        self._radius = 0.5 * math.hypot(*(hi - lo).tolist())
+        (lo_x, hi_x), (lo_y, hi_y) = ((min(v), max(v)) for v in mean.tolist())
+        self._centre = (0.5 * (lo_x + hi_x), 0.5 * (lo_y + hi_y))
+        self._radius = 0.5 * math.hypot(hi_x - lo_x, hi_y - lo_y)
 
     def subset(self, mask: np.ndarray) -> _Lines:
         """The lines where ``mask`` ``(L,)`` is True, in order (cached per mask).
@@ -793,8 +796,12 @@ def _association_hash(j: np.ndarray, keep: np.ndarray, keys: np.ndarray | None =
     ``0..n-1``). Integer sums do not depend on the order of addition, so the hash of a
     set is the same however its points are summed.
     """
-    code = j.astype(np.uint64) * np.uint64(2) + keep + np.uint64(1)
-    return code * (_association_keys(j.size) if keys is None else keys)
+    code = j.astype(np.uint64)  # 2 j + 1 + keep, in place (modulo 2**64)
+    code *= 2
+    code += keep
+    code += 1
+    code *= _association_keys(j.size) if keys is None else keys
+    return code
 
 
 def _align(
