@@ -958,14 +958,14 @@ def _solve_spd3_many(m: np.ndarray, b: np.ndarray, config: IcpConfig):
     """
     eig = np.linalg.eigvalsh(m)  # ascending
     ok = (eig[:, 0] > 0.0) & (eig[:, 2] / eig[:, 0] <= config.max_condition)
-    n_ok = np.count_nonzero(ok)
-    if n_ok == ok.size:
+    (good,) = ok.nonzero()
+    if good.size == ok.size:
         t = np.linalg.solve(m, b[:, :, None])[:, :, 0]
     else:
         t = np.zeros_like(b)
-        if not n_ok:
+        if not good.size:
             return t, ok
-        t[ok] = np.linalg.solve(m[ok], b[ok][:, :, None])[:, :, 0]
+        t[good] = np.linalg.solve(m.take(good, axis=0), b.take(good, axis=0)[:, :, None])[:, :, 0]
     ok &= np.isfinite(t).all(axis=1)
     return t, ok
 
@@ -1029,6 +1029,8 @@ class _Batch:
             [padded([getattr(g, name) for g in lines]) for name in self._LINE_FIELDS]
         ).reshape(len(self._LINE_FIELDS), p, l_max)[:, rows]
         self.counts = np.array([sets[r].shape[0] for r in rows.tolist()], dtype=np.intp)
+        # (3, A): the circle around every running alignment's lines (_Lines.visible_from).
+        self.circles = np.array([(*lines[r]._centre, lines[r]._radius) for r in rows.tolist()]).T
         self.owner = np.repeat(np.arange(rows.size), self.counts)  # (T,) into rows
         self.base = rows[self.owner] * l_max  # (T,) every point's first row of per_line
         # Every point's association key at its index in its set (_association_hash).
@@ -1059,6 +1061,7 @@ class _Batch:
         (pts,) = running[self.owner].nonzero()
         self.rows, self.counts = self.rows.take(kept), self.counts.take(kept)
         self.line_counts = self.line_counts.take(kept)
+        self.circles = self.circles.take(kept, axis=1)
         self.owner = np.repeat(np.arange(kept.size), self.counts)
         self.base, self.keys = self.base.take(pts), self.keys.take(pts)
         self.qx, self.qy = self.qx.take(pts), self.qy.take(pts)
@@ -1069,7 +1072,16 @@ class _Batch:
         self.starts = _offsets(self.counts)
 
     def visible(self, px, py, theta, max_range, half_fov) -> np.ndarray:
-        """:meth:`_Lines.visible_from` of every alignment at its pose ``(A,)``: ``(A, L)``."""
+        """:meth:`_Lines.visible_from` of every alignment at its pose ``(A,)``: ``(A, L)``.
+
+        The range test is skipped (same mask) when every alignment's circle around its
+        lines lies inside the range, as in :meth:`_Lines.visible_from`.
+        """
+        if max_range is not None:
+            cx, cy, radius = self.circles
+            far = np.hypot(cx - px, cy - py) + radius > max_range * (1.0 - _INSIDE_MARGIN)
+            if not np.count_nonzero(far):
+                max_range = None
         return _visible(*self.pair, px[:, None], py[:, None], theta[:, None], max_range, half_fov)
 
     def nearest(self, vis: np.ndarray, distance: bool) -> tuple[np.ndarray, np.ndarray | None]:
@@ -1362,36 +1374,39 @@ def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prio
     np.add(ux * ux, uy * uy, out=per_point[7])
     if config.point_to_line:  # H = sum a_i^T a_i
         np.multiply(w[:, None], w[None], out=per_point[_TERM_ROWS:].reshape(3, 3, -1))
-    # (forms, A, 12): the systems of every alignment, the point-to-line form first (when
-    # used), then H = sum J_i^T J_i (4.3.10), the thesis form and the fallback.
-    a = used.size
+    # (forms, G, 12): the systems of the alignments that step, the point-to-line form
+    # first (when used), then H = sum J_i^T J_i (4.3.10), the thesis form and the fallback.
+    (stepping,) = go.nonzero()
+    n = stepping.size
     forms = _SYSTEM_ROWS if config.point_to_line else _SYSTEM_ROWS[1:]
-    system = batch.sums(per_point)[forms].transpose(0, 2, 1).copy()
+    system = batch.sums(per_point).take(stepping, axis=1)[forms].transpose(0, 2, 1).copy()
     if prior is not None:
-        x, y = px[act], py[act]
-        dth = np.mod(tfth[act] + math.pi, TWO_PI) - math.pi
-        hp, gp = _prior_terms(prior, oy - y, x - ox, x - x0, y - y0, dth)
+        rows = act[stepping]
+        x, y, o_x, o_y = px[rows], py[rows], ox[stepping], oy[stepping]
+        dth = np.mod(tfth[rows] + math.pi, TWO_PI) - math.pi
+        hp, gp = _prior_terms(prior, o_y - y, x - o_x, x - x0, y - y0, dth)
         hp = stack_last(*(np.broadcast_to(v, x.shape) for v in hp))
-        system[..., :9] += hp[:, _SYM3].reshape(a, 9)
+        system[..., :9] += hp[:, _SYM3].reshape(n, 9)
         system[..., 9:] += stack_last(*gp)  # b = -(sum e_i a_i + g)
     t, ok = _solve_spd3_many(
         system[..., :9].reshape(-1, 3, 3), -system[..., 9:].reshape(-1, 3), config
     )
     if config.point_to_line:  # its solution where it exists
-        t = np.where(ok[:a, None], t[:a], t[a:])
-        ok = ok[:a] | ok[a:]
-    stop((go & ~ok).nonzero()[0], "singular")
-    (g,) = (go & ok).nonzero()
-    if g.size == 0:
+        t = np.where(ok[:n, None], t[:n], t[n:])
+        ok = ok[:n] | ok[n:]
+    stop(stepping[~ok], "singular")
+    (solved,) = ok.nonzero()
+    if solved.size == 0:
         return
+    g, t = stepping.take(solved), t.take(solved, axis=0)
     rows = act[g]
     iterations[rows] += 1
-    tth = t[g, 2]
+    tth = t[:, 2]
     cos, sin = np.cos(tth), np.sin(tth)
     og_x, og_y, cgx, cgy = ox[g], oy[g], cx[g], cy[g]
     # Back to a rotation about the world origin: t_xy = t~_xy + o - R o.
-    tx = t[g, 0] + og_x - (cos * og_x - sin * og_y)
-    ty = t[g, 1] + og_y - (sin * og_x + cos * og_y)
+    tx = t[:, 0] + og_x - (cos * og_x - sin * og_y)
+    ty = t[:, 1] + og_y - (sin * og_x + cos * og_y)
     # Move the points of the stepped alignments (4.3.4); the others keep theirs.
     move = np.zeros((4, go.size))  # per alignment [cos, sin, t_x, t_y]: no move
     move[0] = 1.0
