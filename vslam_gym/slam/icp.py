@@ -986,7 +986,7 @@ def _take_lines(table: np.ndarray, index: np.ndarray, n_lines: int) -> np.ndarra
 def _offsets(counts: np.ndarray) -> np.ndarray:
     """``(n,)`` where each of consecutive runs of ``counts`` ``(n,)`` starts (0 first)."""
     starts = np.zeros(counts.size, dtype=np.intp)
-    np.cumsum(counts[:-1], out=starts[1:])
+    counts[:-1].cumsum(out=starts[1:])
     return starts
 
 
