@@ -1399,11 +1399,12 @@ def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prio
     if solved.size == 0:
         return
     g, t = stepping.take(solved), t.take(solved, axis=0)
-    rows = act[g]
+    rows = act.take(g)
     iterations[rows] += 1
     tth = t[:, 2]
     cos, sin = np.cos(tth), np.sin(tth)
-    og_x, og_y, cgx, cgy = ox[g], oy[g], cx[g], cy[g]
+    cgx, cgy = cx.take(g), cy.take(g)
+    og_x, og_y = (cgx, cgy) if config.centre_on_centroid else (ox.take(g), oy.take(g))
     # Back to a rotation about the world origin: t_xy = t~_xy + o - R o.
     tx = t[:, 0] + og_x - (cos * og_x - sin * og_y)
     ty = t[:, 1] + og_y - (sin * og_x + cos * og_y)
@@ -1416,14 +1417,13 @@ def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prio
         c_p * batch.qx - s_p * batch.qy + tx_p,
         s_p * batch.qx + c_p * batch.qy + ty_p,
     )
-    fx, fy = tfx[rows], tfy[rows]
-    tfx[rows] = cos * fx - sin * fy + tx  # (4.3.11)
-    tfy[rows] = sin * fx + cos * fy + ty
-    tfth[rows] += tth
-    cf, sf = np.cos(tfth[rows]), np.sin(tfth[rows])
-    px[rows] = cf * x0 - sf * y0 + tfx[rows]  # (4.3.16), R-23
-    py[rows] = sf * x0 + cf * y0 + tfy[rows]
-    pth[rows] = th0 + tfth[rows]
+    fx, fy, fth = tfx[rows], tfy[rows], tfth[rows] + tth
+    fx, fy = cos * fx - sin * fy + tx, sin * fx + cos * fy + ty  # (4.3.11)
+    tfx[rows], tfy[rows], tfth[rows] = fx, fy, fth
+    cf, sf = np.cos(fth), np.sin(fth)
+    px[rows] = cf * x0 - sf * y0 + fx  # (4.3.16), R-23
+    py[rows] = sf * x0 + cf * y0 + fy
+    pth[rows] = th0 + fth
     # Convergence: how far the step moved the used points' centroid, and turned them.
     moved = np.hypot(cos * cgx - sin * cgy + tx - cgx, sin * cgx + cos * cgy + ty - cgy)
     stop(g[(moved < config.tol_translation) & (np.abs(tth) < config.tol_rotation)], "converged")
