@@ -509,8 +509,9 @@ def _solve_spd3(
     t2 = y2 / l22
     t1 = (y1 - l21 * t2) / l11
     t0 = (y0 - l10 * t1 - l20 * t2) / l00
-    t = (t0, t1, t2)
-    return t if all(math.isfinite(v) for v in t) else None
+    if math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2):
+        return t0, t1, t2
+    return None
 
 
 def _prior_terms(w, a, b, d0, d1, d2):
