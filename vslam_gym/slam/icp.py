@@ -300,36 +300,43 @@ def _segment_distance2(qx, qy, ax, ay, abx, aby, inv_length2) -> np.ndarray:
 class _Lines:
     """Per-line constants of a model, as separate coordinate arrays ``(L,)`` (fast paths).
 
-    Built by :func:`line_geometry` (public name :data:`LineGeometry`).
+    The arrays are the rows of ``table`` ``(7, L)``, in the order of :attr:`FIELDS`. Built
+    by :func:`line_geometry` (public name :data:`LineGeometry`).
     """
 
+    FIELDS = ("ax", "ay", "abx", "aby", "inv_length2", "nx", "ny")
     index: np.ndarray | None = None
 
     def __init__(self, model: LandmarkModel) -> None:
         # Line j joins vertices j and j + 1 (a closed polygon's last one: k - 1 and 0), as
         # model.line_vertices(): its ends by slicing instead of fancy indexing.
-        # Coordinates as rows (2, k): each coordinate array below is a contiguous row.
-        mean, n = model.mean.T, model.n_lines
+        mean, n = model.mean.T, model.n_lines  # coordinates as rows (2, k)
         a = mean[:, :n]
         b = np.concatenate([mean[:, 1:], mean[:, :1]], axis=1) if model.closed else mean[:, 1:]
-        self.ax, self.ay = a.copy()
-        self.abx, self.aby = b[:, :n] - a
+        self._set_table(np.empty((len(self.FIELDS), n)))
+        self.table[:2] = a
+        np.subtract(b[:, :n], a, out=self.table[2:4])
         length2 = self.abx * self.abx + self.aby * self.aby
         if np.count_nonzero(length2 > 0) == n:
-            self.inv_length2 = 1.0 / length2
+            np.divide(1.0, length2, out=self.inv_length2)
         else:  # zero-length lines get zero normals and inverse lengths: never visible
-            self.inv_length2 = np.divide(
-                1.0, length2, out=np.zeros_like(length2), where=length2 > 0
-            )
+            self.inv_length2[:] = 0.0
+            np.divide(1.0, length2, out=self.inv_length2, where=length2 > 0)
         inv_length = np.sqrt(self.inv_length2)
         # Free-side (right-hand) unit normal n = [sin psi, -cos psi] (4.3.12).
-        self.nx, self.ny = self.aby * inv_length, -self.abx * inv_length
+        np.multiply(self.aby, inv_length, out=self.nx)
+        np.multiply(-self.abx, inv_length, out=self.ny)
         self._subsets: dict[bytes, _Lines] = {}
         # A circle around every line (centre of the vertices' bounding box), for the
         # shortcuts of visible_from.
         (lo_x, hi_x), (lo_y, hi_y) = ((min(v), max(v)) for v in mean.tolist())
         self._centre = (0.5 * (lo_x + hi_x), 0.5 * (lo_y + hi_y))
         self._radius = 0.5 * math.hypot(hi_x - lo_x, hi_y - lo_y)
+
+    def _set_table(self, table: np.ndarray) -> None:
+        """Take ``table`` ``(7, L)`` as the constants: its rows become the named arrays."""
+        self.table = table
+        self.ax, self.ay, self.abx, self.aby, self.inv_length2, self.nx, self.ny = table
 
     def subset(self, mask: np.ndarray) -> _Lines:
         """The lines where ``mask`` ``(L,)`` is True, in order (cached per mask).
@@ -342,9 +349,8 @@ class _Lines:
         sub = self._subsets.get(key)
         if sub is None:
             sub = object.__new__(_Lines)
-            sub.index = np.flatnonzero(mask)
-            for name in ("ax", "ay", "abx", "aby", "inv_length2", "nx", "ny"):
-                setattr(sub, name, getattr(self, name)[sub.index])
+            (sub.index,) = mask.nonzero()
+            sub._set_table(self.table.take(sub.index, axis=1))
             sub._centre, sub._radius = self._centre, self._radius  # around these lines too
             self._subsets[key] = sub
         return sub
@@ -1001,34 +1007,28 @@ class _Batch:
     the contiguous runs. :meth:`keep` drops the points of alignments that stopped.
     """
 
-    _LINE_FIELDS = ("ax", "ay", "abx", "aby", "inv_length2")
-    _POINT_FIELDS = ("ax", "ay", "nx", "ny")  # and the unknown flag: the columns of per_line
+    _PAIR_ROWS = 5  # ax, ay, abx, aby, inv_length2: the first rows of _Lines.table
+    _POINT_ROWS = [0, 1, 5, 6, 7]  # ax, ay, nx, ny and the unknown flag (row 7 below)
 
     def __init__(self, sets, lines, unknowns, rows: np.ndarray) -> None:
         sizes = np.array([g.ax.size for g in lines], dtype=np.intp)
         self.n_lines = l_max = int(sizes.max())
         p = len(sets)
-        # Where every model's lines go in the (p * l_max) slots of the padded rows.
+        # Every model's line constants and unknown flag (1.0 / 0.0) in the (p * l_max)
+        # slots of the padded rows (zero: a padded line).
         slots = np.arange(sizes.sum()) + np.repeat(np.arange(p) * l_max - _offsets(sizes), sizes)
-
-        def padded(values: list[np.ndarray]) -> np.ndarray:
-            flat = np.zeros(p * l_max)
-            flat[slots] = np.concatenate(values)
-            return flat
-
+        padded = np.zeros((len(_Lines.FIELDS) + 1, p * l_max))
+        padded[:-1, slots] = np.concatenate([g.table for g in lines], axis=1)
+        padded[-1, slots] = np.concatenate(unknowns)
         # What a point needs of its nearest line, one row per (alignment, line): the
-        # line's start [m], free-side normal and unknown flag (1.0 / 0.0).
-        self.per_line = stack_last(
-            *(padded([getattr(g, name) for g in lines]) for name in self._POINT_FIELDS),
-            padded(unknowns),
-        )
+        # line's start [m], free-side normal and unknown flag.
+        self.per_line = np.ascontiguousarray(padded[self._POINT_ROWS].T)
         self.rows = rows  # the running alignments
         self.line_counts = sizes[rows]
-        # (fields, A, L): the line constants of _LINE_FIELDS per running alignment, and
-        # (fields, T, L) the same per point, padded to the largest running line count.
-        self.pair = np.stack(
-            [padded([getattr(g, name) for g in lines]) for name in self._LINE_FIELDS]
-        ).reshape(len(self._LINE_FIELDS), p, l_max)[:, rows]
+        # (5, A, L): the line constants of _PAIR_ROWS per running alignment, and
+        # (5, T, L) the same per point, padded to the largest running line count.
+        pair = padded[: self._PAIR_ROWS].reshape(self._PAIR_ROWS, p, l_max)
+        self.pair = pair.take(rows, axis=1)
         self.counts = np.array([sets[r].shape[0] for r in rows.tolist()], dtype=np.intp)
         # (3, A): the circle around every running alignment's lines (_Lines.visible_from).
         self.circles = np.array([(*lines[r]._centre, lines[r]._radius) for r in rows.tolist()]).T
