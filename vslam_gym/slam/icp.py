@@ -855,7 +855,7 @@ def _align(
             d2 = _segment_distance2(
                 qx[:, None], qy[:, None], sub.ax, sub.ay, sub.abx, sub.aby, sub.inv_length2
             )
-            j = np.argmin(d2, axis=1)  # into the visible lines
+            j = d2.argmin(axis=1)  # into the visible lines
             near = d2[np.arange(j.size), j] <= max_d2 if max_d2 < math.inf else None
             # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
             nx, ny = sub.nx[j], sub.ny[j]
@@ -982,7 +982,7 @@ _SYM3 = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 
 
 def _take_lines(table: np.ndarray, index: np.ndarray, n_lines: int) -> np.ndarray:
-    """``table[:, index, :n_lines]`` of a ``(fields, N, L)`` table, C-contiguous.
+    """``table[:, index, :n_lines]`` of a ``(fields, A, L)`` table, C-contiguous.
 
     (``take`` then slice: numpy's fancy indexing of a middle axis is several times slower.)
     """
@@ -1069,7 +1069,7 @@ class _Batch:
         self.frozen_j, self.frozen_keep = self.frozen_j.take(pts), self.frozen_keep.take(pts)
         n_lines = int(self.line_counts.max())  # the padding the running ones need
         self.pair = _take_lines(self.pair, kept, n_lines)
-        self.point = _take_lines(self.point, pts, n_lines)
+        self.point = self.pair.take(self.owner, axis=1)
         self.starts = _offsets(self.counts)
 
     def visible(self, px, py, theta, max_range, half_fov) -> np.ndarray:
@@ -1245,9 +1245,9 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
             blind = ~fro & ~vis.any(axis=1)
             keys = batch.association_hash(j, keep) if seen is not None or watches else None
             if seen is not None:
-                for k, r in enumerate(act.tolist()):
-                    if fro[k] or blind[k]:
-                        continue
+                rows = act.tolist()
+                for k in (~(fro | blind)).nonzero()[0].tolist():
+                    r = rows[k]
                     earlier = seen[r].get(keys[k])
                     if earlier is not None and earlier < it - 1:
                         frozen[r] = True
