@@ -1012,7 +1012,7 @@ class _Batch:
 
     def __init__(self, sets, lines, unknowns, rows: np.ndarray) -> None:
         sizes = np.array([g.ax.size for g in lines], dtype=np.intp)
-        self.n_lines = l_max = int(sizes.max())
+        l_max = int(sizes.max())
         p = len(sets)
         # Every model's line constants and unknown flag (1.0 / 0.0) in the (p * l_max)
         # slots of the padded rows (zero: a padded line).
