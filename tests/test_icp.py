@@ -783,3 +783,37 @@ def test_pose_bound_wraps_heading_and_validates():
         PoseBound(np.eye(2), 1.0)
     with pytest.raises(ValueError, match="limit"):
         PoseBound(np.eye(3), -1.0)
+
+
+def test_segment_distance2_is_the_squared_segment_offset_bit_for_bit():
+    rng = np.random.default_rng(7)
+    q = rng.normal(scale=3.0, size=(50, 2))
+    model = LandmarkModel(
+        np.array([(0.0, 0.0), (2.0, 1.0), (2.0, 1.0), (3.0, -1.0)]),  # one zero-length line
+        np.eye(8) * 1e-4,
+        np.zeros(3),
+    )
+    g = line_geometry(model)
+    consts = (g.ax, g.ay, g.abx, g.aby, g.inv_length2)
+    assert g.inv_length2[1] == 0.0 and g.nx[1] == 0.0
+    dx, dy = icp.segment_offsets(q[:, :1], q[:, 1:], *consts)
+    want = dx * dx + dy * dy
+    np.testing.assert_array_equal(icp._segment_distance2(q[:, :1], q[:, 1:], *consts), want)
+    per_point = [np.tile(c, (q.shape[0], 1)) for c in consts]  # (n, L) as in the batch
+    np.testing.assert_array_equal(icp._segment_distance2(q[:, :1], q[:, 1:], *per_point), want)
+    # the geometry's arrays are the rows of its table, also for a subset
+    sub = g.subset(np.array([True, False, True]))
+    np.testing.assert_array_equal(sub.table, g.table[:, [0, 2]])
+    assert all(np.shares_memory(getattr(sub, name), sub.table) for name in sub.FIELDS)
+
+
+def test_batch_sums_do_not_depend_on_the_layout():
+    # The batch sums per-point terms with np.add.reduceat and relies on each run's sum
+    # depending only on that run's values (not on the other rows or the memory layout).
+    rng = np.random.default_rng(3)
+    counts = rng.integers(1, 300, size=17)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    terms = rng.normal(size=(9, counts.sum())) * rng.choice([1e-3, 1.0, 1e3], size=counts.sum())
+    rows = np.add.reduceat(terms, starts, axis=1)
+    np.testing.assert_array_equal(np.add.reduceat(terms.T.copy(), starts, axis=0), rows.T)
+    np.testing.assert_array_equal(np.add.reduceat(terms[4], starts), rows[4])

@@ -274,36 +274,69 @@ def segment_offsets(qx, qy, ax, ay, abx, aby, inv_length2) -> tuple[np.ndarray, 
     return aqx - s * abx, aqy - s * aby
 
 
+def _segment_distance2(qx, qy, ax, ay, abx, aby, inv_length2) -> np.ndarray:
+    """Squared length ``dx^2 + dy^2`` [m^2] of :func:`segment_offsets`, for the hot paths.
+
+    The same operations in the same order (bit-identical), but in place in two
+    temporaries: ``qx - ax`` must already have the shape of the result (points ``(n, 1)``
+    against lines ``(L,)`` or ``(n, L)``).
+    """
+    dx = qx - ax
+    dy = qy - ay
+    s = dx * abx
+    tmp = dy * aby
+    s += tmp
+    s *= inv_length2
+    np.maximum(s, 0.0, out=s)  # _unit_clip
+    np.minimum(s, 1.0, out=s)
+    dx -= np.multiply(s, abx, out=tmp)
+    dy -= np.multiply(s, aby, out=tmp)
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return dx
+
+
 class _Lines:
     """Per-line constants of a model, as separate coordinate arrays ``(L,)`` (fast paths).
 
-    Built by :func:`line_geometry` (public name :data:`LineGeometry`).
+    The arrays are the rows of ``table`` ``(7, L)``, in the order of :attr:`FIELDS`. Built
+    by :func:`line_geometry` (public name :data:`LineGeometry`).
     """
 
+    FIELDS = ("ax", "ay", "abx", "aby", "inv_length2", "nx", "ny")
     index: np.ndarray | None = None
 
     def __init__(self, model: LandmarkModel) -> None:
         # Line j joins vertices j and j + 1 (a closed polygon's last one: k - 1 and 0), as
         # model.line_vertices(): its ends by slicing instead of fancy indexing.
-        mean, n = model.mean, model.n_lines
-        a = mean[:n]
-        b = np.concatenate([mean[1:], mean[:1]]) if model.closed else mean[1 : n + 1]
-        ab = b - a
-        self.ax, self.ay = a[:, 0].copy(), a[:, 1].copy()
-        self.abx, self.aby = ab[:, 0].copy(), ab[:, 1].copy()
+        mean, n = model.mean.T, model.n_lines  # coordinates as rows (2, k)
+        a = mean[:, :n]
+        b = np.concatenate([mean[:, 1:], mean[:, :1]], axis=1) if model.closed else mean[:, 1:]
+        self._set_table(np.empty((len(self.FIELDS), n)))
+        self.table[:2] = a
+        np.subtract(b[:, :n], a, out=self.table[2:4])
         length2 = self.abx * self.abx + self.aby * self.aby
-        ok = length2 > 0
-        # Zero-length lines get zero normals and inverse lengths; they are never visible.
-        self.inv_length2 = np.divide(1.0, length2, out=np.zeros_like(length2), where=ok)
+        if np.count_nonzero(length2 > 0) == n:
+            np.divide(1.0, length2, out=self.inv_length2)
+        else:  # zero-length lines get zero normals and inverse lengths: never visible
+            self.inv_length2[:] = 0.0
+            np.divide(1.0, length2, out=self.inv_length2, where=length2 > 0)
         inv_length = np.sqrt(self.inv_length2)
         # Free-side (right-hand) unit normal n = [sin psi, -cos psi] (4.3.12).
-        self.nx, self.ny = self.aby * inv_length, -self.abx * inv_length
+        np.multiply(self.aby, inv_length, out=self.nx)
+        np.multiply(-self.abx, inv_length, out=self.ny)
         self._subsets: dict[bytes, _Lines] = {}
         # A circle around every line (centre of the vertices' bounding box), for the
         # shortcuts of visible_from.
-        lo, hi = mean.min(axis=0), mean.max(axis=0)
-        self._centre = (0.5 * float(lo[0] + hi[0]), 0.5 * float(lo[1] + hi[1]))
-        self._radius = 0.5 * math.hypot(*(hi - lo).tolist())
+        (lo_x, hi_x), (lo_y, hi_y) = ((min(v), max(v)) for v in mean.tolist())
+        self._centre = (0.5 * (lo_x + hi_x), 0.5 * (lo_y + hi_y))
+        self._radius = 0.5 * math.hypot(hi_x - lo_x, hi_y - lo_y)
+
+    def _set_table(self, table: np.ndarray) -> None:
+        """Take ``table`` ``(7, L)`` as the constants: its rows become the named arrays."""
+        self.table = table
+        self.ax, self.ay, self.abx, self.aby, self.inv_length2, self.nx, self.ny = table
 
     def subset(self, mask: np.ndarray) -> _Lines:
         """The lines where ``mask`` ``(L,)`` is True, in order (cached per mask).
@@ -316,9 +349,8 @@ class _Lines:
         sub = self._subsets.get(key)
         if sub is None:
             sub = object.__new__(_Lines)
-            sub.index = np.flatnonzero(mask)
-            for name in ("ax", "ay", "abx", "aby", "inv_length2", "nx", "ny"):
-                setattr(sub, name, getattr(self, name)[sub.index])
+            (sub.index,) = mask.nonzero()
+            sub._set_table(self.table.take(sub.index, axis=1))
             sub._centre, sub._radius = self._centre, self._radius  # around these lines too
             self._subsets[key] = sub
         return sub
@@ -483,8 +515,9 @@ def _solve_spd3(
     t2 = y2 / l22
     t1 = (y1 - l21 * t2) / l11
     t0 = (y0 - l10 * t1 - l20 * t2) / l00
-    t = (t0, t1, t2)
-    return t if all(math.isfinite(v) for v in t) else None
+    if math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2):
+        return t0, t1, t2
+    return None
 
 
 def _prior_terms(w, a, b, d0, d1, d2):
@@ -762,16 +795,20 @@ def _association_keys(n: int) -> np.ndarray:
 _KEYS = np.zeros(0, dtype=np.uint64)
 
 
-def _association_hash(j: np.ndarray, keep: np.ndarray, position: np.ndarray | None = None):
+def _association_hash(j: np.ndarray, keep: np.ndarray, keys: np.ndarray | None = None):
     """The 64-bit hash codes of an association, one per point (sum them mod 2**64).
 
-    ``j``: every point's line, ``keep``: whether it is used, ``position``: its index in
-    its set (default ``0..n-1``). Integer sums do not depend on the order of addition,
-    so the hash of a set is the same however its points are summed.
+    ``j``: every point's line, ``keep``: whether it is used, ``keys``: every point's key
+    :func:`_association_keys` at its index in its set (default: the points are one set,
+    ``0..n-1``). Integer sums do not depend on the order of addition, so the hash of a
+    set is the same however its points are summed.
     """
-    keys = _association_keys(int(j.size if position is None else position.max() + 1))
-    code = j.astype(np.uint64) * np.uint64(2) + keep + np.uint64(1)
-    return code * (keys if position is None else keys[position])
+    code = j.astype(np.uint64)  # 2 j + 1 + keep, in place (modulo 2**64)
+    code *= 2
+    code += keep
+    code += 1
+    code *= _association_keys(j.size) if keys is None else keys
+    return code
 
 
 def _align(
@@ -815,11 +852,10 @@ def _align(
                 break
             # Nearest visible segment of every point (R-22): dense (n, visible lines).
             sub = lines.subset(vis)
-            dx, dy = segment_offsets(
+            d2 = _segment_distance2(
                 qx[:, None], qy[:, None], sub.ax, sub.ay, sub.abx, sub.aby, sub.inv_length2
             )
-            d2 = dx * dx + dy * dy
-            j = np.argmin(d2, axis=1)  # into the visible lines
+            j = d2.argmin(axis=1)  # into the visible lines
             near = d2[np.arange(j.size), j] <= max_d2 if max_d2 < math.inf else None
             # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
             nx, ny = sub.nx[j], sub.ny[j]
@@ -841,7 +877,8 @@ def _align(
             e = (qx - lines.ax[j]) * nx + (qy - lines.ay[j]) * ny
         n_used = int(np.count_nonzero(keep))
         if n_used < q.shape[0]:
-            e, nx, ny, ux, uy = e[keep], nx[keep], ny[keep], qx[keep], qy[keep]
+            (at,) = keep.nonzero()
+            e, nx, ny, ux, uy = e.take(at), nx.take(at), ny.take(at), qx.take(at), qy.take(at)
         else:
             ux, uy = qx, qy
         rms = math.sqrt(float(e @ e) / n_used) if n_used else np.inf
@@ -919,26 +956,45 @@ def _align(
 # ------------------------------------------------------------------------ batched ICP
 
 
-def _solve_spd3_many(h: np.ndarray, b: np.ndarray, max_condition: float):
-    """:func:`_solve_spd3` of ``(A, 6)`` systems ``h`` with ``(A, 3)`` right-hand sides.
+def _solve_spd3_many(m: np.ndarray, b: np.ndarray, config: IcpConfig):
+    """:func:`_solve_spd3` of ``(A, 3, 3)`` symmetric systems ``m`` with ``(A, 3)`` right sides.
 
     Returns ``(t, ok)``: ``(A, 3)`` solutions and ``(A,)`` bool, False where ``H`` is not
-    positive definite or its condition number exceeds ``max_condition`` (``t`` is then
-    zero).
+    positive definite or its condition number exceeds ``config.max_condition`` (``t`` is
+    then zero). A singular ``H`` divides by zero: the caller ignores it (``np.errstate``).
     """
-    m = h[:, _SYM3]  # (A, 3, 3)
     eig = np.linalg.eigvalsh(m)  # ascending
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ok = (eig[:, 0] > 0.0) & (eig[:, 2] / eig[:, 0] <= max_condition)
-    t = np.zeros_like(b)
-    if ok.any():
-        t[ok] = np.linalg.solve(m[ok], b[ok][:, :, None])[:, :, 0]
-        ok &= np.all(np.isfinite(t), axis=1)
+    ok = (eig[:, 0] > 0.0) & (eig[:, 2] / eig[:, 0] <= config.max_condition)
+    (good,) = ok.nonzero()
+    if good.size == ok.size:
+        t = np.linalg.solve(m, b[:, :, None])[:, :, 0]
+    else:
+        t = np.zeros_like(b)
+        if not good.size:
+            return t, ok
+        t[good] = np.linalg.solve(m.take(good, axis=0), b.take(good, axis=0)[:, :, None])[:, :, 0]
+    ok &= np.isfinite(t).all(axis=1)
     return t, ok
 
 
 _SYM3 = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 """Indices of ``[h00, h01, h02, h11, h12, h22]`` that make the symmetric ``3 x 3`` matrix."""
+
+
+def _take_lines(table: np.ndarray, index: np.ndarray, n_lines: int) -> np.ndarray:
+    """``table[:, index, :n_lines]`` of a ``(fields, A, L)`` table, C-contiguous.
+
+    (``take`` then slice: numpy's fancy indexing of a middle axis is several times slower.)
+    """
+    out = table.take(index, axis=1)
+    return out if n_lines == out.shape[2] else np.ascontiguousarray(out[:, :, :n_lines])
+
+
+def _offsets(counts: np.ndarray) -> np.ndarray:
+    """``(n,)`` where each of consecutive runs of ``counts`` ``(n,)`` starts (0 first)."""
+    starts = np.zeros(counts.size, dtype=np.intp)
+    counts[:-1].cumsum(out=starts[1:])
+    return starts
 
 
 class _Batch:
@@ -951,80 +1007,101 @@ class _Batch:
     the contiguous runs. :meth:`keep` drops the points of alignments that stopped.
     """
 
-    _LINE_FIELDS = ("ax", "ay", "abx", "aby", "inv_length2")
+    _PAIR_ROWS = 5  # ax, ay, abx, aby, inv_length2: the first rows of _Lines.table
+    _POINT_ROWS = [0, 1, 5, 6, 7]  # ax, ay, nx, ny and the unknown flag (row 7 below)
 
     def __init__(self, sets, lines, unknowns, rows: np.ndarray) -> None:
-        self.n_lines = l_max = max(g.ax.size for g in lines)
+        sizes = np.array([g.ax.size for g in lines], dtype=np.intp)
+        l_max = int(sizes.max())
         p = len(sets)
-        pair = {}
-        for name in (*self._LINE_FIELDS, "nx", "ny"):
-            arr = np.zeros((p, l_max))
-            for k, g in enumerate(lines):
-                arr[k, : g.ax.size] = getattr(g, name)
-            pair[name] = arr
-        unknown = np.zeros((p, l_max))
-        for k, u in enumerate(unknowns):
-            unknown[k, : u.size] = u
+        # Every model's line constants and unknown flag (1.0 / 0.0) in the (p * l_max)
+        # slots of the padded rows (zero: a padded line).
+        slots = np.arange(sizes.sum()) + np.repeat(np.arange(p) * l_max - _offsets(sizes), sizes)
+        padded = np.zeros((len(_Lines.FIELDS) + 1, p * l_max))
+        padded[:-1, slots] = np.concatenate([g.table for g in lines], axis=1)
+        padded[-1, slots] = np.concatenate(unknowns)
         # What a point needs of its nearest line, one row per (alignment, line): the
-        # line's start [m], free-side normal and unknown flag (1.0 / 0.0).
-        self.per_line = np.stack(
-            [pair["ax"], pair["ay"], pair["nx"], pair["ny"], unknown], axis=2
-        ).reshape(p * l_max, 5)
+        # line's start [m], free-side normal and unknown flag.
+        self.per_line = np.ascontiguousarray(padded[self._POINT_ROWS].T)
         self.rows = rows  # the running alignments
-        self.line_counts = np.array([lines[r].ax.size for r in rows.tolist()], dtype=np.intp)
-        # (fields, A, L): the line constants of _LINE_FIELDS per running alignment, and
-        # (fields, T, L) the same per point, padded to the largest running line count.
-        self.pair = np.stack([pair[name][rows] for name in self._LINE_FIELDS])
+        self.line_counts = sizes[rows]
+        # (5, A, L): the line constants of _PAIR_ROWS per running alignment, and
+        # (5, T, L) the same per point, padded to the largest running line count.
+        pair = padded[: self._PAIR_ROWS].reshape(self._PAIR_ROWS, p, l_max)
+        self.pair = pair.take(rows, axis=1)
         self.counts = np.array([sets[r].shape[0] for r in rows.tolist()], dtype=np.intp)
+        # (3, A): the circle around every running alignment's lines (_Lines.visible_from).
+        self.circles = np.array([(*lines[r]._centre, lines[r]._radius) for r in rows.tolist()]).T
         self.owner = np.repeat(np.arange(rows.size), self.counts)  # (T,) into rows
-        self.position = np.concatenate([np.arange(c) for c in self.counts.tolist()])
+        self.base = rows[self.owner] * l_max  # (T,) every point's first row of per_line
+        # Every point's association key at its index in its set (_association_hash).
+        position = np.arange(self.owner.size) - np.repeat(_offsets(self.counts), self.counts)
+        self.keys = _association_keys(int(self.counts.max()))[position]
         q = np.concatenate([sets[r] for r in rows.tolist()])
         self.qx, self.qy = q[:, 0].copy(), q[:, 1].copy()
-        self.point = self.pair[:, self.owner]
+        self.point = self.pair.take(self.owner, axis=1)
         self.frozen_j = np.zeros(self.qx.size, dtype=np.intp)
         self.frozen_keep = np.zeros(self.qx.size, dtype=bool)
-        self._starts()
+        self.starts = _offsets(self.counts)
 
-    def _starts(self) -> None:
-        self.starts = np.concatenate([[0], np.cumsum(self.counts)[:-1]])
+    def terms(self, n: int) -> np.ndarray:
+        """An empty ``(n, T)`` array, to fill row by row with per-point terms for :meth:`sums`."""
+        return np.empty((n, self.qx.size))
 
-    def sums(self, columns: list[np.ndarray]) -> np.ndarray:
-        """``(A, len(columns))``: each ``(T,)`` column summed over every alignment's points."""
-        return np.add.reduceat(stack_last(*columns), self.starts, axis=0)
+    def sums(self, terms: np.ndarray) -> np.ndarray:
+        """``(n, A)``: each row of ``(n, T)`` :meth:`terms` summed over every alignment's points.
+
+        ``np.add.reduceat`` sums every run by itself (pairwise): the sum of a run does not
+        depend on the other rows or on the memory layout.
+        """
+        return np.add.reduceat(terms, self.starts, axis=1)
 
     def keep(self, running: np.ndarray) -> None:
         """Keep only the alignments where ``running`` ``(A,)`` is True."""
-        at = self.owner
-        pts = running[at]
-        self.rows, self.counts = self.rows[running], self.counts[running]
-        self.line_counts = self.line_counts[running]
-        self.owner = (np.cumsum(running) - 1)[at[pts]]
-        self.position = self.position[pts]
-        self.qx, self.qy = self.qx[pts], self.qy[pts]
-        self.frozen_j, self.frozen_keep = self.frozen_j[pts], self.frozen_keep[pts]
+        (kept,) = running.nonzero()
+        (pts,) = running[self.owner].nonzero()
+        self.rows, self.counts = self.rows.take(kept), self.counts.take(kept)
+        self.line_counts = self.line_counts.take(kept)
+        self.circles = self.circles.take(kept, axis=1)
+        self.owner = np.repeat(np.arange(kept.size), self.counts)
+        self.base, self.keys = self.base.take(pts), self.keys.take(pts)
+        self.qx, self.qy = self.qx.take(pts), self.qy.take(pts)
+        self.frozen_j, self.frozen_keep = self.frozen_j.take(pts), self.frozen_keep.take(pts)
         n_lines = int(self.line_counts.max())  # the padding the running ones need
-        self.pair = self.pair[:, running, :n_lines]
-        self.point = self.point[:, pts, :n_lines]
-        self._starts()
+        self.pair = _take_lines(self.pair, kept, n_lines)
+        self.point = self.pair.take(self.owner, axis=1)
+        self.starts = _offsets(self.counts)
 
     def visible(self, px, py, theta, max_range, half_fov) -> np.ndarray:
-        """:meth:`_Lines.visible_from` of every alignment at its pose ``(A,)``: ``(A, L)``."""
+        """:meth:`_Lines.visible_from` of every alignment at its pose ``(A,)``: ``(A, L)``.
+
+        The range test is skipped (same mask) when every alignment's circle around its
+        lines lies inside the range, as in :meth:`_Lines.visible_from`.
+        """
+        if max_range is not None:
+            cx, cy, radius = self.circles
+            far = np.hypot(cx - px, cy - py) + radius > max_range * (1.0 - _INSIDE_MARGIN)
+            if not np.count_nonzero(far):
+                max_range = None
         return _visible(*self.pair, px[:, None], py[:, None], theta[:, None], max_range, half_fov)
 
-    def nearest(self, vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Every point's nearest visible segment (R-22): index ``(T,)`` and squared distance."""
-        dx, dy = segment_offsets(self.qx[:, None], self.qy[:, None], *self.point)
-        d2 = np.where(vis[self.owner], dx * dx + dy * dy, np.inf)
-        j = np.argmin(d2, axis=1)
-        return j, d2[np.arange(j.size), j]
+    def nearest(self, vis: np.ndarray, distance: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Every point's nearest visible segment (R-22): index ``(T,)`` and squared distance.
+
+        The distance ``(T,)`` [m^2] only when ``distance`` is True (None otherwise).
+        """
+        d2 = _segment_distance2(self.qx[:, None], self.qy[:, None], *self.point)
+        np.putmask(d2, (~vis).take(self.owner, axis=0), np.inf)
+        j = d2.argmin(axis=1)
+        return j, d2[np.arange(j.size), j] if distance else None
 
     def line_of(self, j: np.ndarray) -> np.ndarray:
         """``(T, 5)``: ``[ax, ay, nx, ny, unknown]`` of every point's line ``j``."""
-        return self.per_line[self.rows[self.owner] * self.n_lines + j]
+        return self.per_line.take(self.base + j, axis=0)
 
     def association_hash(self, j: np.ndarray, keep: np.ndarray) -> list[int]:
         """Per alignment the 64-bit hash of its association (:func:`_association_hash`)."""
-        return np.add.reduceat(_association_hash(j, keep, self.position), self.starts).tolist()
+        return np.add.reduceat(_association_hash(j, keep, self.keys), self.starts).tolist()
 
 
 def _align_batch(
@@ -1112,9 +1189,10 @@ class _Stopper:
         self.act, self.running, self.reasons = act, running, reasons
 
     def __call__(self, local: np.ndarray, reason: str) -> None:
-        self.running[local] = False
-        for r in self.act[local].tolist():
-            self.reasons[r] = reason
+        if local.size:
+            self.running[local] = False
+            for r in self.act[local].tolist():
+                self.reasons[r] = reason
 
 
 _SEQUENTIAL_AT_MOST = 3
@@ -1130,179 +1208,223 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
     px, py, pth, tfx, tfy, tfth, iterations, n_used, rms, frozen = state
     bounds, prior = inputs[3:]
     x0, y0, th0 = (float(v) for v in pose0)
-    finished: dict[int, IcpResult] = {}
     p = px.size
     max_d2 = config.max_correspondence_distance**2  # inf: every point may be used
     watches = [_CycleWatch(config) for _ in range(p)] if config.cycle_returns else None
     seen: list[dict[int, int]] | None = [{} for _ in range(p)] if config.freeze_on_cycle else None
     bounded = np.array([b is not None for b in bounds])
-    whitening = np.stack([np.eye(3) if b is None else b.whitening for b in bounds])
-    limit2 = np.array([0.0 if b is None else b.limit * b.limit for b in bounds])
-    for it in range(config.max_iterations):
-        act = batch.rows
-        if act.size <= _SEQUENTIAL_AT_MOST:
-            for k, r in enumerate(act.tolist()):
-                pts = batch.owner == k
-                progress = _Progress(
-                    it,
-                    batch.qx[pts],
-                    batch.qy[pts],
-                    (float(px[r]), float(py[r]), float(pth[r])),
-                    (float(tfx[r]), float(tfy[r]), float(tfth[r])),
-                    int(iterations[r]),
-                    int(n_used[r]),
-                    float(rms[r]),
-                    None if seen is None else seen[r],
-                    (batch.frozen_j[pts], batch.frozen_keep[pts]) if frozen[r] else None,
-                    None if watches is None else watches[r],
+    if bounded.any():
+        whitening = np.stack([np.eye(3) if b is None else b.whitening for b in bounds])
+        limit2 = np.array([0.0 if b is None else b.limit * b.limit for b in bounds])
+    # An alignment without used points (or lines) divides by zero: its rms, its centroid
+    # and its condition number are masked below.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for it in range(config.max_iterations):
+            act = batch.rows
+            if act.size <= _SEQUENTIAL_AT_MOST:
+                return _finish_one_by_one(
+                    batch, it, state, seen, watches, inputs, pose0, config, max_range, half_fov
                 )
-                finished[r] = _align_one(r, inputs, pose0, config, max_range, half_fov, progress)
-            return finished
-        running = np.ones(act.size, dtype=bool)
-        stop = _Stopper(act, running, reasons)
-        vis = batch.visible(px[act], py[act], pth[act], max_range, half_fov)
-        j, d2 = batch.nearest(vis)
-        fro = frozen[act]
-        fro_pts = fro[batch.owner] if fro.any() else None
-        if fro_pts is not None:
-            j = np.where(fro_pts, batch.frozen_j, j)
-        line = batch.line_of(j)
-        nx, ny = line[:, 2], line[:, 3]
-        # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
-        e = (batch.qx - line[:, 0]) * nx + (batch.qy - line[:, 1]) * ny
-        keep = ~((line[:, 4] > 0.0) & (e <= 0.0))
-        if max_d2 < math.inf:
-            keep &= d2 <= max_d2
-        if fro_pts is not None:
-            keep = np.where(fro_pts, batch.frozen_keep, keep)
-        blind = ~fro & ~vis.any(axis=1)
-        keys = batch.association_hash(j, keep) if seen is not None or watches else None
-        if seen is not None:
-            for k, r in enumerate(act.tolist()):
-                if fro[k] or blind[k]:
-                    continue
-                earlier = seen[r].get(keys[k])
-                if earlier is not None and earlier < it - 1:
-                    frozen[r] = True
-                    pts = batch.owner == k
-                    batch.frozen_j[pts], batch.frozen_keep[pts] = j[pts], keep[pts]
-                seen[r][keys[k]] = it
-        kf = keep.astype(float)
-        e = e * kf
-        sums = batch.sums([kf, e * e, batch.qx * kf, batch.qy * kf])
-        used = sums[:, 0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rms_it = np.where(used > 0, np.sqrt(sums[:, 1] / used), np.inf)
-        n_used[act] = np.where(blind, 0, used.astype(np.intp))
-        rms[act] = np.where(blind, np.inf, rms_it)
-        go = ~blind & (used >= config.min_points)
-        stop(np.flatnonzero(~go), "too_few_points")
-        if watches is not None:
-            for k, r in enumerate(act.tolist()):
-                state_r = ((px[r], py[r], pth[r]), tfx[r], tfy[r], tfth[r], n_used[r], rms[r])
-                if go[k] and watches[r].cycled(keys[k], state_r):
-                    # Where the endless alignment would stop: its pose after the last
-                    # iteration, and the used points and rms at the start of that one.
-                    (px[r], py[r], pth[r]), tfx[r], tfy[r], tfth[r] = watches[r].state_at(
-                        config.max_iterations
-                    )[:4]
-                    n_used[r], rms[r] = watches[r].state_at(config.max_iterations - 1)[4:]
-                    go[k] = False
-                    stop(np.array([k]), "cycle")
-        if go.any():
-            _step(batch, act, go, running, stop, sums, (nx, ny, e, kf), state, pose0, config, prior)
-            upd = act[running]  # stepped and not converged
-            check = upd[bounded[upd]]
-            if check.size:
-                dth = np.mod(tfth[check] + math.pi, TWO_PI) - math.pi
-                d = np.stack([px[check] - x0, py[check] - y0, dth], axis=1)
-                w = np.einsum("kij,kj->ki", whitening[check], d)
-                out = np.einsum("ki,ki->k", w, w) > limit2[check]
-                stop(np.searchsorted(act, check[out]), "out_of_bound")
-        if not running.all():
-            if not running.any():
-                return finished
-            batch.keep(running)
+            running = np.ones(act.size, dtype=bool)
+            stop = _Stopper(act, running, reasons)
+            vis = batch.visible(px[act], py[act], pth[act], max_range, half_fov)
+            j, d2 = batch.nearest(vis, max_d2 < math.inf)
+            fro = frozen[act]
+            fro_pts = fro[batch.owner] if np.count_nonzero(fro) else None
+            if fro_pts is not None:
+                j = np.where(fro_pts, batch.frozen_j, j)
+            line = batch.line_of(j)
+            nx, ny = line[:, 2], line[:, 3]
+            # Signed distance to the chosen line (4.3.12): > 0 in front (free side).
+            e = (batch.qx - line[:, 0]) * nx + (batch.qy - line[:, 1]) * ny
+            keep = ~((line[:, 4] > 0.0) & (e <= 0.0))
+            if max_d2 < math.inf:
+                keep &= d2 <= max_d2
+            if fro_pts is not None:
+                keep = np.where(fro_pts, batch.frozen_keep, keep)
+            blind = ~fro & ~vis.any(axis=1)
+            keys = batch.association_hash(j, keep) if seen is not None or watches else None
+            if seen is not None:
+                rows = act.tolist()
+                for k in (~(fro | blind)).nonzero()[0].tolist():
+                    r = rows[k]
+                    earlier = seen[r].get(keys[k])
+                    if earlier is not None and earlier < it - 1:
+                        frozen[r] = True
+                        pts = batch.owner == k
+                        batch.frozen_j[pts], batch.frozen_keep[pts] = j[pts], keep[pts]
+                    seen[r][keys[k]] = it
+            terms = batch.terms(4)
+            kf = terms[0]
+            np.copyto(kf, keep)  # 1.0 / 0.0
+            e *= kf
+            np.multiply(e, e, out=terms[1])
+            np.multiply(batch.qx, kf, out=terms[2])
+            np.multiply(batch.qy, kf, out=terms[3])
+            sums = batch.sums(terms)
+            used = sums[0]
+            rms_it = np.where(used > 0, np.sqrt(sums[1] / used), np.inf)
+            n_used[act] = np.where(blind, 0, used.astype(np.intp))
+            rms[act] = np.where(blind, np.inf, rms_it)
+            go = ~blind & (used >= config.min_points)
+            stop((~go).nonzero()[0], "too_few_points")
+            if watches is not None:
+                for k, r in enumerate(act.tolist()):
+                    state_r = ((px[r], py[r], pth[r]), tfx[r], tfy[r], tfth[r], n_used[r], rms[r])
+                    if go[k] and watches[r].cycled(keys[k], state_r):
+                        # Where the endless alignment would stop: its pose after the last
+                        # iteration, and the used points and rms at the start of that one.
+                        (px[r], py[r], pth[r]), tfx[r], tfy[r], tfth[r] = watches[r].state_at(
+                            config.max_iterations
+                        )[:4]
+                        n_used[r], rms[r] = watches[r].state_at(config.max_iterations - 1)[4:]
+                        go[k] = False
+                        stop(np.array([k]), "cycle")
+            if np.count_nonzero(go):
+                point_terms = (nx, ny, e, kf)
+                _step(batch, act, go, running, stop, sums, point_terms, state, pose0, config, prior)
+                if bounded.any():
+                    upd = act[running]  # stepped and not converged
+                    check = upd[bounded[upd]]
+                    dth = np.mod(tfth[check] + math.pi, TWO_PI) - math.pi
+                    d = np.stack([px[check] - x0, py[check] - y0, dth], axis=1)
+                    w = np.einsum("kij,kj->ki", whitening[check], d)
+                    out = np.einsum("ki,ki->k", w, w) > limit2[check]
+                    stop(np.searchsorted(act, check[out]), "out_of_bound")
+            n_running = np.count_nonzero(running)
+            if n_running < running.size:
+                if not n_running:
+                    return {}
+                batch.keep(running)
+    return {}
+
+
+def _finish_one_by_one(
+    batch, it, state, seen, watches, inputs, pose0, config, max_range, half_fov
+) -> dict[int, IcpResult]:
+    """:func:`_align` of each alignment still running in ``batch``, from iteration ``it``.
+
+    Returns their results by index.
+    """
+    px, py, pth, tfx, tfy, tfth, iterations, n_used, rms, frozen = state
+    finished: dict[int, IcpResult] = {}
+    for k, r in enumerate(batch.rows.tolist()):
+        pts = batch.owner == k
+        progress = _Progress(
+            it,
+            batch.qx[pts],
+            batch.qy[pts],
+            (float(px[r]), float(py[r]), float(pth[r])),
+            (float(tfx[r]), float(tfy[r]), float(tfth[r])),
+            int(iterations[r]),
+            int(n_used[r]),
+            float(rms[r]),
+            None if seen is None else seen[r],
+            (batch.frozen_j[pts], batch.frozen_keep[pts]) if frozen[r] else None,
+            None if watches is None else watches[r],
+        )
+        finished[r] = _align_one(r, inputs, pose0, config, max_range, half_fov, progress)
     return finished
+
+
+_TERM_ROWS = 8
+"""Rows of :func:`_step`'s per-point terms ``(8 or 17, T)`` (``e`` the signed distance,
+``w = [n_x, n_y, a_3]`` the row ``a_i`` and ``u`` the point in the solving frame, all
+zero for the unused points): ``e w`` (3 rows), ``0``, ``1``, ``u_x``, ``-u_y``,
+``|u|^2``, and for the point-to-line form ``w w^T`` (9 rows, row-major)."""
+
+_SYSTEM_ROWS = np.array(
+    [
+        [*range(_TERM_ROWS, _TERM_ROWS + 9), 0, 1, 2],  # H = sum a_i^T a_i
+        [4, 3, 6, 3, 4, 5, 6, 5, 7, 0, 1, 2],  # H = sum J_i^T J_i (4.3.10)
+    ]
+)
+"""Per form, the rows of the summed terms that make ``H`` (3 x 3, row-major) and ``-b``."""
 
 
 def _step(batch, act, go, running, stop, sums, terms, state, pose0, config, prior) -> None:
     """One least-squares step of the alignments ``act[go]``; stops the singular and converged.
 
-    ``terms``: every point's line normal, signed distance and use ``(nx, ny, e, kf)``;
-    ``prior``: the upper triangle of ``prior_weight`` or None.
+    ``sums``: the per-alignment sums of :func:`_iterate` (used points, squared distances,
+    ``x``, ``y``); ``terms``: every point's line normal, signed distance and use ``(nx,
+    ny, e, kf)``; ``prior``: the upper triangle of ``prior_weight`` or None. Divisions
+    by zero (an alignment without used points) must be ignored by the caller
+    (``np.errstate``).
     """
     nx, ny, e, kf = terms
     px, py, pth, tfx, tfy, tfth, iterations = state[:7]
     x0, y0, th0 = pose0
-    used = sums[:, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cx, cy = sums[:, 2] / used, sums[:, 3] / used
+    used = sums[0]
+    cx, cy = sums[2] / used, sums[3] / used
     if config.centre_on_centroid:
         ox, oy = np.where(go, cx, 0.0), np.where(go, cy, 0.0)
     else:
         ox, oy = np.zeros_like(cx), np.zeros_like(cy)
     owner = batch.owner
-    ux = (batch.qx - ox[owner]) * kf
+    per_point = batch.terms(_TERM_ROWS + 9 if config.point_to_line else _TERM_ROWS)
+    ux = np.multiply(batch.qx - ox[owner], kf, out=per_point[5])
     uy = (batch.qy - oy[owner]) * kf
-    nx, ny = nx * kf, ny * kf
+    np.negative(uy, out=per_point[6])
+    w = np.empty((3, ux.size))
+    nx, ny = np.multiply(nx, kf, out=w[0]), np.multiply(ny, kf, out=w[1])
     # Rows a_i = n_i^T J_i with J_i = [[1, 0, -y], [0, 1, x]] (4.3.9) in the solving
     # frame. With d_i = -e_i n_i (4.3.15), b = sum J^T d = -sum e_i a_i in both forms.
-    a3 = ux * ny - uy * nx
-    columns = [e * nx, e * ny, e * a3, ux, uy, ux * ux + uy * uy]
+    np.subtract(ux * ny, uy * nx, out=w[2])
+    np.multiply(e, w, out=per_point[:3])
+    per_point[3], per_point[4] = 0.0, kf
+    np.add(ux * ux, uy * uy, out=per_point[7])
     if config.point_to_line:  # H = sum a_i^T a_i
-        columns += [nx * nx, nx * ny, nx * a3, ny * ny, ny * a3, a3 * a3]
-    s = batch.sums(columns)
-    rhs = -s[:, :3]
-    # H = sum J_i^T J_i (4.3.10): the thesis form, and the point-to-line fallback.
-    thesis = stack_last(used, np.zeros_like(used), -s[:, 4], used, s[:, 3], s[:, 5])
-    h_line = s[:, 6:12] if config.point_to_line else None
+        np.multiply(w[:, None], w[None], out=per_point[_TERM_ROWS:].reshape(3, 3, -1))
+    # (forms, G, 12): the systems of the alignments that step, the point-to-line form
+    # first (when used), then H = sum J_i^T J_i (4.3.10), the thesis form and the fallback.
+    (stepping,) = go.nonzero()
+    n = stepping.size
+    forms = _SYSTEM_ROWS if config.point_to_line else _SYSTEM_ROWS[1:]
+    system = batch.sums(per_point).take(stepping, axis=1)[forms].transpose(0, 2, 1).copy()
     if prior is not None:
-        x, y = px[act], py[act]
-        dth = np.mod(tfth[act] + math.pi, TWO_PI) - math.pi
-        hp, gp = _prior_terms(prior, oy - y, x - ox, x - x0, y - y0, dth)
+        rows = act[stepping]
+        x, y, o_x, o_y = px[rows], py[rows], ox[stepping], oy[stepping]
+        dth = np.mod(tfth[rows] + math.pi, TWO_PI) - math.pi
+        hp, gp = _prior_terms(prior, o_y - y, x - o_x, x - x0, y - y0, dth)
         hp = stack_last(*(np.broadcast_to(v, x.shape) for v in hp))
-        rhs = rhs - stack_last(*gp)
-        thesis = thesis + hp
-        h_line = None if h_line is None else h_line + hp
-    if h_line is not None:  # H = sum a_i^T a_i, both forms solved in one call
-        both, ok_both = _solve_spd3_many(
-            np.concatenate([h_line, thesis]), np.concatenate([rhs, rhs]), config.max_condition
-        )
-        a = used.size
-        t = np.where(ok_both[:a, None], both[:a], both[a:])
-        ok = ok_both[:a] | ok_both[a:]
-    else:
-        t, ok = _solve_spd3_many(thesis, rhs, config.max_condition)
-    stop(np.flatnonzero(go & ~ok), "singular")
-    g = np.flatnonzero(go & ok)
-    if g.size == 0:
-        return
-    rows = act[g]
-    iterations[rows] += 1
-    tth = t[g, 2]
-    cos, sin = np.cos(tth), np.sin(tth)
-    og_x, og_y, cgx, cgy = ox[g], oy[g], cx[g], cy[g]
-    # Back to a rotation about the world origin: t_xy = t~_xy + o - R o.
-    tx = t[g, 0] + og_x - (cos * og_x - sin * og_y)
-    ty = t[g, 1] + og_y - (sin * og_x + cos * og_y)
-    # Move the points of the stepped alignments (4.3.4); the others keep theirs.
-    c_all, s_all = np.ones(go.size), np.zeros(go.size)
-    tx_all, ty_all = np.zeros(go.size), np.zeros(go.size)
-    c_all[g], s_all[g], tx_all[g], ty_all[g] = cos, sin, tx, ty
-    c_p, s_p = c_all[owner], s_all[owner]
-    batch.qx, batch.qy = (
-        c_p * batch.qx - s_p * batch.qy + tx_all[owner],
-        s_p * batch.qx + c_p * batch.qy + ty_all[owner],
+        system[..., :9] += hp[:, _SYM3].reshape(n, 9)
+        system[..., 9:] += stack_last(*gp)  # b = -(sum e_i a_i + g)
+    t, ok = _solve_spd3_many(
+        system[..., :9].reshape(-1, 3, 3), -system[..., 9:].reshape(-1, 3), config
     )
-    fx, fy = tfx[rows], tfy[rows]
-    tfx[rows] = cos * fx - sin * fy + tx  # (4.3.11)
-    tfy[rows] = sin * fx + cos * fy + ty
-    tfth[rows] += tth
-    cf, sf = np.cos(tfth[rows]), np.sin(tfth[rows])
-    px[rows] = cf * x0 - sf * y0 + tfx[rows]  # (4.3.16), R-23
-    py[rows] = sf * x0 + cf * y0 + tfy[rows]
-    pth[rows] = th0 + tfth[rows]
+    if config.point_to_line:  # its solution where it exists
+        t = np.where(ok[:n, None], t[:n], t[n:])
+        ok = ok[:n] | ok[n:]
+    stop(stepping[~ok], "singular")
+    (solved,) = ok.nonzero()
+    if solved.size == 0:
+        return
+    g, t = stepping.take(solved), t.take(solved, axis=0)
+    rows = act.take(g)
+    iterations[rows] += 1
+    tth = t[:, 2]
+    cos, sin = np.cos(tth), np.sin(tth)
+    cgx, cgy = cx.take(g), cy.take(g)
+    og_x, og_y = (cgx, cgy) if config.centre_on_centroid else (ox.take(g), oy.take(g))
+    # Back to a rotation about the world origin: t_xy = t~_xy + o - R o.
+    tx = t[:, 0] + og_x - (cos * og_x - sin * og_y)
+    ty = t[:, 1] + og_y - (sin * og_x + cos * og_y)
+    # Move the points of the stepped alignments (4.3.4); the others keep theirs.
+    move = np.zeros((4, go.size))  # per alignment [cos, sin, t_x, t_y]: no move
+    move[0] = 1.0
+    move[:, g] = cos, sin, tx, ty
+    c_p, s_p, tx_p, ty_p = move.take(owner, axis=1)
+    batch.qx, batch.qy = (
+        c_p * batch.qx - s_p * batch.qy + tx_p,
+        s_p * batch.qx + c_p * batch.qy + ty_p,
+    )
+    fx, fy, fth = tfx[rows], tfy[rows], tfth[rows] + tth
+    fx, fy = cos * fx - sin * fy + tx, sin * fx + cos * fy + ty  # (4.3.11)
+    tfx[rows], tfy[rows], tfth[rows] = fx, fy, fth
+    cf, sf = np.cos(fth), np.sin(fth)
+    px[rows] = cf * x0 - sf * y0 + fx  # (4.3.16), R-23
+    py[rows] = sf * x0 + cf * y0 + fy
+    pth[rows] = th0 + fth
     # Convergence: how far the step moved the used points' centroid, and turned them.
     moved = np.hypot(cos * cgx - sin * cgy + tx - cgx, sin * cgx + cos * cgy + ty - cgy)
     stop(g[(moved < config.tol_translation) & (np.abs(tth) < config.tol_rotation)], "converged")
