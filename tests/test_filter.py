@@ -11,7 +11,14 @@ from _raycast import bearings_deg, cast, polygon_edges
 
 from vslam_gym.config_utils import UnknownKeyError
 from vslam_gym.slam.config import SensorConfig
-from vslam_gym.slam.filter import SlamConfig, VertexSLAM, _median_distances, _near_candidates
+from vslam_gym.slam.filter import (
+    SlamConfig,
+    VertexSLAM,
+    _median_distances,
+    _near_candidates,
+    _sorted_median,
+    _sorted_quantile,
+)
 from vslam_gym.slam.icp import line_geometry, object_radius
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.motion import increments_between, predict_pose
@@ -214,6 +221,18 @@ def test_cached_models_radii_and_median_distances_match_plain_computations():
         got = _median_distances(pts, geometry)
         want = [reference_median_distance(pts, m) for m in models]
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_sorted_median_and_quantile_equal_numpys_to_the_last_bit():
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 3, 4, 7, 10, 11, 64, 101):
+        rows = rng.exponential(0.3, (3, n)) * rng.choice([1e-3, 1.0, 30.0], (3, 1))
+        rows = np.sort(rows, axis=1)
+        np.testing.assert_array_equal(_sorted_median(rows), np.median(rows, axis=1))
+        for q in (0.0, 0.05, 0.1, 0.25, 0.5, 0.7, 0.9, 1.0, rng.uniform()):
+            np.testing.assert_array_equal(
+                _sorted_quantile(rows, q), np.quantile(rows, q, axis=1), err_msg=f"{n} {q}"
+            )
 
 
 def test_near_candidates_keep_a_partly_overlapping_set_and_drop_a_parallel_one():
