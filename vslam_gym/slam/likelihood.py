@@ -17,7 +17,7 @@ beam for the unscented transform).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from scipy import special
@@ -60,6 +60,7 @@ _MAX_BRACKET_DOUBLINGS = 64
 _SYMMETRY_RTOL = 1e-9
 _LOG_2PI = float(np.log(2.0 * np.pi))
 _SQRT_2_OVER_PI = float(np.sqrt(2.0 / np.pi))
+_SQRT_2 = float(np.sqrt(2.0))
 
 
 # --------------------------------------------------------------------------- validation
@@ -400,7 +401,7 @@ def _log_emg(x: np.ndarray, var: np.ndarray, lam: np.ndarray) -> np.ndarray:
     out[neg] = (
         np.log(lam[neg])
         - 0.5 * x[neg] ** 2 / var[neg]
-        + np.log(0.5 * special.erfcx(-z[neg] / np.sqrt(2.0)))
+        + np.log(0.5 * special.erfcx(-z[neg] / _SQRT_2))
     )
     return out
 
@@ -413,7 +414,7 @@ def _dlog_emg(x: np.ndarray, var: np.ndarray, lam: np.ndarray) -> np.ndarray:
     pos = z >= 0.0
     neg = ~pos
     mills[pos] = np.exp(-0.5 * z[pos] ** 2 - 0.5 * _LOG_2PI - special.log_ndtr(z[pos]))
-    mills[neg] = _SQRT_2_OVER_PI / special.erfcx(-z[neg] / np.sqrt(2.0))
+    mills[neg] = _SQRT_2_OVER_PI / special.erfcx(-z[neg] / _SQRT_2)
     return -lam + mills / s
 
 
@@ -524,9 +525,43 @@ def _mixture_slope(
     return w_gauss * (-x / var) + w_unk * _dlog_emg(x, var, lam)
 
 
-def _mixture_derivatives(
-    x: np.ndarray, var: np.ndarray, lam: np.ndarray, log_u: np.ndarray, log_1mu: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+class _ModeTerms(NamedTuple):
+    """The ``x``-free parts of :func:`_mixture_derivatives`, per point (1-D arrays).
+
+    Computed once per mode search (:func:`_density_mode`) instead of once per Newton
+    step; each is the same expression the step evaluated, so the steps are unchanged.
+    """
+
+    var: np.ndarray  # s^2 [m^2]
+    s: np.ndarray  # s [m]
+    lam_var: np.ndarray  # lam s^2 [m]
+    neg_lam: np.ndarray  # -lam [1/m]
+    half_lam2_var: np.ndarray  # 0.5 lam^2 s^2
+    neg_inv_var: np.ndarray  # -1 / s^2 [1/m^2]
+    log_1mu: np.ndarray  # log(1 - u)
+    log_u_lam: np.ndarray  # log(u) + log(lam)
+    half_log_2pi_var: np.ndarray  # 0.5 log(2 pi s^2)
+
+
+def _mode_terms(
+    var: np.ndarray, lam: np.ndarray, log_u: np.ndarray, log_1mu: np.ndarray
+) -> _ModeTerms:
+    """:class:`_ModeTerms` of points with variances ``var``, rates ``lam`` and log weights."""
+    with np.errstate(divide="ignore"):
+        return _ModeTerms(
+            var=var,
+            s=np.sqrt(var),
+            lam_var=lam * var,
+            neg_lam=-lam,
+            half_lam2_var=0.5 * lam**2 * var,
+            neg_inv_var=-1.0 / var,
+            log_1mu=log_1mu,
+            log_u_lam=log_u + np.log(lam),
+            half_log_2pi_var=0.5 * np.log(2.0 * np.pi * var),
+        )
+
+
+def _mixture_derivatives(x: np.ndarray, t: _ModeTerms) -> tuple[np.ndarray, np.ndarray]:
     """First and second ``x``-derivatives of ``log p`` of the line density (Newton steps).
 
     One evaluation of the standard normal tail per point serves both. With
@@ -536,34 +571,36 @@ def _mixture_derivatives(
     ``g = logaddexp(G, U)`` has ``g' = w_G G' + w_U U'`` and
     ``g'' = w_G G'' + w_U U'' + w_G w_U (G' - U')^2`` with the posterior weights ``w``.
     Both tail forms are evaluated everywhere and the cancellation-free one kept (as in
-    :func:`_log_emg`), which avoids masked assignments on these small arrays.
+    :func:`_log_emg`), which avoids masked assignments on these small arrays. The
+    caller ignores floating-point warnings (overflow and division by zero in the
+    discarded forms; :func:`_density_mode`).
     """
-    s = np.sqrt(var)
-    z = (x - lam * var) / s
-    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-        log_phi_tail = special.log_ndtr(z)  # accurate for z >= 0
-        erfcx_neg = special.erfcx(-z / np.sqrt(2.0))  # accurate for z < 0
-        pos = z >= 0.0
-        log_tail_part = np.where(
-            pos,
-            -lam * x + 0.5 * lam**2 * var + log_phi_tail,
-            -0.5 * x**2 / var + np.log(0.5 * erfcx_neg),
-        )
-        mills = np.where(
-            pos,
-            np.exp(-0.5 * z**2 - 0.5 * _LOG_2PI - log_phi_tail),
-            _SQRT_2_OVER_PI / erfcx_neg,
-        )
-    gauss = log_1mu - 0.5 * (x**2 / var)
-    unk = log_u + np.log(lam) + log_tail_part + 0.5 * np.log(2.0 * np.pi * var)
+    var = t.var
+    z = (x - t.lam_var) / t.s
+    log_phi_tail = special.log_ndtr(z)  # accurate for z >= 0
+    erfcx_neg = special.erfcx(-z / _SQRT_2)  # accurate for z < 0
+    pos = z >= 0.0
+    x2 = x**2
+    log_tail_part = np.where(
+        pos,
+        t.neg_lam * x + t.half_lam2_var + log_phi_tail,
+        -0.5 * x2 / var + np.log(0.5 * erfcx_neg),
+    )
+    mills = np.where(
+        pos,
+        np.exp(-0.5 * z**2 - 0.5 * _LOG_2PI - log_phi_tail),
+        _SQRT_2_OVER_PI / erfcx_neg,
+    )
+    gauss = t.log_1mu - 0.5 * (x2 / var)
+    unk = t.log_u_lam + log_tail_part + t.half_log_2pi_var
     g = np.logaddexp(gauss, unk)
     w_gauss = np.exp(gauss - g)
     w_unk = np.exp(unk - g)
     d_gauss = -x / var
-    d_unk = -lam + mills / s
+    d_unk = t.neg_lam + mills / t.s
     slope = w_gauss * d_gauss + w_unk * d_unk
     curvature = (
-        w_gauss * (-1.0 / var)
+        w_gauss * t.neg_inv_var
         + w_unk * (-mills * (z + mills) / var)
         + w_gauss * w_unk * (d_gauss - d_unk) ** 2
     )
@@ -612,27 +649,29 @@ def _density_mode(
     tolerance = _MODE_TOLERANCE * sigma
     x = lo.copy()
     running = None if groups is None else np.ones(x.size, dtype=bool)
-    for _ in range(2 * _BISECTION_ITERATIONS):
-        slope, curvature = _mixture_derivatives(x, var, lam, log_u, log_1mu)
-        up = slope > 0.0
-        lo = np.where(up, x, lo)
-        hi = np.where(up, hi, x)
-        with np.errstate(divide="ignore", invalid="ignore"):
+    n_groups = 0 if groups is None else int(groups.max()) + 1
+    terms = _mode_terms(var, lam, log_u, log_1mu)
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        for _ in range(2 * _BISECTION_ITERATIONS):
+            slope, curvature = _mixture_derivatives(x, terms)
+            up = slope > 0.0
+            lo = np.where(up, x, lo)
+            hi = np.where(up, hi, x)
             newton = x - slope / curvature
-        inside = (curvature < 0.0) & (newton >= lo) & (newton <= hi)
-        x_new = np.where(inside, newton, 0.5 * (lo + hi))
-        big = ~(np.abs(x_new - x) <= tolerance)
-        if running is None:
-            x = x_new
-            if not np.any(big):
+            inside = (curvature < 0.0) & (newton >= lo) & (newton <= hi)
+            x_new = np.where(inside, newton, 0.5 * (lo + hi))
+            big = ~(np.abs(x_new - x) <= tolerance)
+            if running is None:
+                x = x_new
+                if not big.any():
+                    break
+                continue
+            x = np.where(running, x_new, x)
+            # A group whose running points all took a small step is done.
+            unfinished = np.bincount(groups[running & big], minlength=n_groups) > 0
+            running &= unfinished[groups]
+            if not running.any():
                 break
-            continue
-        x = np.where(running, x_new, x)
-        # A group whose running points all took a small step is done.
-        unfinished = np.bincount(groups[running & big], minlength=groups.max() + 1) > 0
-        running &= unfinished[groups]
-        if not np.any(running):
-            break
     return x
 
 
@@ -715,7 +754,7 @@ def generalized_mahalanobis_sq_unchecked(
     n = x.size
     both = np.concatenate([x_mode, x])
     rel = _relative_mixture_log(
-        both, np.tile(var, 2), np.tile(lam, 2), np.tile(log_u, 2), np.tile(log_1mu, 2)
+        both, *(np.concatenate([a, a]) for a in (var, lam, log_u, log_1mu))
     )[0]
     return np.maximum(2.0 * (rel[:n] - rel[n:]), 0.0)
 
