@@ -593,11 +593,13 @@ def _residuals(
     idx = idx.reshape(rx.shape)
     # (h, n, 4): normal and point, the sentinel when unmatched; it becomes the system:
     # the normal stays (d r / d [x, y]), the point is overwritten once r is computed.
-    system = reference.table[idx]
+    # (np.take: the same gather as ``table[idx]``, several times faster.)
+    system = np.take(reference.table, idx, axis=0)
     nx, ny = system[..., 0], system[..., 1]
-    r = nx * (wx - system[..., 2]) + ny * (wy - system[..., 3])
+    # r = n_x (w_x - p_x) + n_y (w_y - p_y), both coordinates per operation
+    along = system[..., :2] * (world - system[..., 2:])
     np.subtract(ny * rx, nx * ry, out=system[..., 2])
-    system[..., 3] = r
+    np.add(along[..., 0], along[..., 1], out=system[..., 3])
     return _Residuals(system, idx < reference.tree.n)
 
 
