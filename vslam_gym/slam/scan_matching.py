@@ -603,18 +603,31 @@ def _residuals(
     return _Residuals(system, idx < reference.tree.n)
 
 
-def _normal_equations(res: _Residuals, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``H = sum w J^T J`` ``(h, 3, 3)`` and ``g = sum w J r`` ``(h, 3)``.
+def _normal_equations(
+    res: _Residuals, weights: np.ndarray, factor: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``H = f sum w J^T J`` ``(h, 3, 3)`` and ``g = f sum w J r`` ``(h, 3)``, ``f = factor``.
 
     One batched product ``[J r]^T W [J r]`` (a matrix product: several times faster
-    than ``einsum`` at these sizes).
+    than ``einsum`` at these sizes), scaled in place.
     """
     m = (weights[:, None, :] * res.system.transpose(0, 2, 1)) @ res.system
+    m *= factor
     return m[:, :3, :3], m[:, :3, 3]
 
 
+def _cauchy_any(res: _Residuals, scale: float) -> np.ndarray:
+    """Cauchy weights ``(h, n)`` of the residuals, 1 where unmatched (``r = 0``).
+
+    Enough for :func:`_normal_equations`: an unmatched row of the system is zero, and
+    so is its product with any weight.
+    """
+    return 1.0 / (1.0 + (res.r / scale) ** 2)
+
+
 def _cauchy(res: _Residuals, scale: float) -> np.ndarray:
-    return np.where(res.matched, 1.0 / (1.0 + (res.r / scale) ** 2), 0.0)
+    """Cauchy weights ``(h, n)`` of the residuals, 0 where unmatched."""
+    return np.where(res.matched, _cauchy_any(res, scale), 0.0)
 
 
 def _gauss_newton(
@@ -644,8 +657,7 @@ def _gauss_newton(
             if kept.size < poses.shape[0]:
                 poses = poses[kept]
                 res = res.take(kept)
-        hess, grad = _normal_equations(res, _cauchy(res, config.robust_scale))
-        hess, grad = scan_info * hess, scan_info * grad
+        hess, grad = _normal_equations(res, _cauchy_any(res, config.robust_scale), scan_info)
         if prior.used:  # adding a zero term changes nothing: skipped
             hess = hess + prior.info
             grad = grad + prior.offset(poses) @ prior.info
@@ -672,7 +684,7 @@ _DAMPING = np.eye(3) * np.finfo(float).eps ** 0.5
 
 def _damped_step(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
     """``-(H + damping tr(H) I)^-1 g`` per pose: ``hess`` ``(h, 3, 3)``, ``grad`` ``(h, 3)``."""
-    scale = np.maximum(np.trace(hess, axis1=1, axis2=2), 1.0)[:, None, None]
+    scale = np.maximum(hess.trace(axis1=1, axis2=2), 1.0)[:, None, None]
     return -np.linalg.solve(hess + _DAMPING * scale, grad[..., None])[..., 0]
 
 
