@@ -63,14 +63,12 @@ from vslam_gym.slam.gaussian import (
 from vslam_gym.slam.geometry import check_pose, stack_last, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.likelihood import (
-    _expected_range_parts,
-    expected_range,
     exponential_rate,
     generalized_mahalanobis_sq_unchecked,
-    line_loglik,
-    object_loglik,
+    line_loglik_unchecked,
+    object_loglik_unchecked,
     range_error_distribution,
-    range_error_jacobian,
+    range_error_jacobian_rows,
 )
 from vslam_gym.slam.scan import Scan
 
@@ -342,11 +340,10 @@ def _range_errors(
     if not isinstance(linearization, FirstOrderLinearization):
         return range_error_distribution(ranges, bearings, Q, pose, mu_vv, Sigma_vv, linearization)
     inputs = np.concatenate([ranges[:, None], bearings[:, None], mu_vv], axis=1)
-    jac = range_error_jacobian(inputs, pose)[:, 0, :]
+    jac, r_exp = range_error_jacobian_rows(inputs, pose)
     j_z, j_v = jac[:, :2], jac[:, 2:]
     var = np.sum((j_z @ Q) * j_z, axis=1) + (j_v[:, None, :] @ Sigma_vv @ j_v[:, :, None])[:, 0, 0]
-    mu = ranges - expected_range(bearings, mu_vv[:, :2], mu_vv[:, 2:], pose)
-    return mu, var
+    return ranges - r_exp, var
 
 
 # --------------------------------------------------------------------- correspondence
@@ -357,14 +354,19 @@ def _line_loglik(mu: np.ndarray, var: np.ndarray, u: np.ndarray, lam: float) -> 
 
     Evaluated as :func:`~vslam_gym.slam.likelihood.object_loglik` where ``u = 0``
     (identical there, without the unknown-line density the mixture would evaluate and
-    discard).
+    discard). One check of the range errors here instead of the library's per-call
+    input checks (``u`` and ``lam`` were validated with the models and by the caller).
     """
+    if not (np.isfinite(mu).all() and np.isfinite(var).all() and (var > 0.0).all()):
+        raise ValueError("range errors must be finite with variances > 0")
     out = np.empty_like(mu)
     obj = u == 0.0
-    if np.any(obj):
-        out[obj] = object_loglik(mu[obj], var[obj])
-    if not np.all(obj):
-        out[~obj] = line_loglik(mu[~obj], var[~obj], u[~obj], lam)
+    if obj.any():
+        out[obj] = object_loglik_unchecked(mu[obj], var[obj])
+    if not obj.all():
+        mixed = ~obj
+        lam_arr = np.full(int(np.count_nonzero(mixed)), lam)
+        out[mixed] = line_loglik_unchecked(mu[mixed], var[mixed], u[mixed], lam_arr)
     return out
 
 
@@ -616,15 +618,11 @@ def _range_errors_many(
                 ranges[sel], bearings[sel], Q, poses[c], mu_vv[sel], Sigma_vv[sel], linearization
             )
         return mu, var
-    pose = poses[owner]
     inputs = np.concatenate([ranges[:, None], bearings[:, None], mu_vv], axis=1)
-    jac = range_error_jacobian(inputs, pose)[:, 0, :]
+    jac, r_exp = range_error_jacobian_rows(inputs, poses[owner])
     j_z, j_v = jac[:, :2], jac[:, 2:]
     var = np.sum((j_z @ Q) * j_z, axis=1) + (j_v[:, None, :] @ Sigma_vv @ j_v[:, :, None])[:, 0, 0]
-    numerator, denominator, *_ = _expected_range_parts(bearings, mu_vv[:, :2], mu_vv[:, 2:], pose)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mu = ranges - numerator / denominator
-    return mu, var
+    return ranges - r_exp, var
 
 
 def beam_line_correspondences(

@@ -212,6 +212,19 @@ def range_error_jacobian(inputs: np.ndarray, pose: np.ndarray) -> np.ndarray:
     Returns:
         Jacobian, shape (..., 1, 6) (one output row).
     """
+    return range_error_jacobian_rows(inputs, pose)[0][..., None, :]
+
+
+def range_error_jacobian_rows(
+    inputs: np.ndarray, pose: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`range_error_jacobian` without its output axis, and the expected ranges.
+
+    Returns:
+        The Jacobian rows ``(..., 6)`` (C-contiguous) and ``r_exp`` [m] ``(...)``, the
+        value :func:`expected_range` gives for the same beams and lines (computed on
+        the way; unchecked: ``+-inf`` or ``nan`` where a beam is parallel to its line).
+    """
     inputs = np.asarray(inputs, dtype=float)
     pose = np.asarray(pose, dtype=float)
     v_b = inputs[..., 4:6]
@@ -224,11 +237,13 @@ def range_error_jacobian(inputs: np.ndarray, pose: np.ndarray) -> np.ndarray:
     dn = stack_last(-by, bx, ay, -ax)
     # dD/d[v_ax, v_ay, v_bx, v_by]: D = cos(a) dv_y - sin(a) dv_x.
     dd = stack_last(-sin_a, cos_a, sin_a, -cos_a)
+    jac = np.empty((*r_exp.shape, _ERROR_INPUT_DIM))
+    jac[..., 0] = 1.0
     with np.errstate(divide="ignore", invalid="ignore"):
         d_phi = numerator * (cos_a * dvx + sin_a * dvy) / denominator**2
-        d_v = (dn - r_exp[..., None] * dd) / denominator[..., None]
-    jac = np.concatenate([np.ones_like(d_phi)[..., None], -d_phi[..., None], -d_v], axis=-1)
-    return jac[..., None, :]
+        np.negative(d_phi, out=jac[..., 1])
+        np.negative((dn - r_exp[..., None] * dd) / denominator[..., None], out=jac[..., 2:])
+    return jac, r_exp
 
 
 def range_error_distribution(
@@ -336,7 +351,12 @@ def object_loglik(mu_err: np.ndarray, var_err: np.ndarray) -> np.ndarray:
             broadcast.
     """
     mu, var = _broadcast(mu_err=_finite("mu_err", mu_err), var_err=_positive("var_err", var_err))
-    return -0.5 * (np.log(2.0 * np.pi * var) + mu**2 / var)
+    return object_loglik_unchecked(mu, var)
+
+
+def object_loglik_unchecked(mu_err: np.ndarray, var_err: np.ndarray) -> np.ndarray:
+    """:func:`object_loglik` of validated arrays of one shape (hot path, nothing checked)."""
+    return -0.5 * (np.log(2.0 * np.pi * var_err) + mu_err**2 / var_err)
 
 
 def exponential_rate(ranges: np.ndarray, max_range: float) -> float:
@@ -493,9 +513,22 @@ def line_loglik(
         ValueError: non-finite input, non-positive ``var_err`` or ``lam``, ``u`` outside
             ``[0, 1]``, shapes that do not broadcast.
     """
-    x, var, _, lam_arr, log_u, log_1mu = _line_parts(mu_err, var_err, u, lam)
-    g, _, _ = _relative_mixture_log(x, var, lam_arr, log_u, log_1mu)
-    return g - 0.5 * np.log(2.0 * np.pi * var)
+    x, var, u_arr, lam_arr, _, _ = _line_parts(mu_err, var_err, u, lam)
+    return line_loglik_unchecked(x, var, u_arr, lam_arr)
+
+
+def line_loglik_unchecked(
+    mu_err: np.ndarray, var_err: np.ndarray, u: np.ndarray, lam: np.ndarray
+) -> np.ndarray:
+    """:func:`line_loglik` of validated arrays of one shape (hot path, nothing checked).
+
+    The caller guarantees finite ``mu_err``, ``var_err > 0``, ``u`` in ``[0, 1]`` and
+    ``lam > 0``, all of the same shape (``lam`` may be a broadcast view).
+    """
+    with np.errstate(divide="ignore"):
+        log_u, log_1mu = np.log(u), np.log1p(-u)
+    g, _, _ = _relative_mixture_log(mu_err, var_err, lam, log_u, log_1mu)
+    return g - 0.5 * np.log(2.0 * np.pi * var_err)
 
 
 def set_loglik(
