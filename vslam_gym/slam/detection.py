@@ -60,7 +60,7 @@ from vslam_gym.slam.gaussian import (
     Linearization,
     make_linearization,
 )
-from vslam_gym.slam.geometry import check_pose, stack_last, wrap_angle
+from vslam_gym.slam.geometry import TWO_PI, check_pose, stack_last, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.likelihood import (
     exponential_rate,
@@ -625,6 +625,25 @@ def _range_errors_many(
     return ranges - r_exp, var
 
 
+def _beam_offsets(phi: np.ndarray, beams: np.ndarray) -> np.ndarray:
+    """``wrap_angle(phi[..., None, :] - beams[:, :, None])`` ``(..., C, n, L)`` [rad].
+
+    ``phi`` ``(..., C, L)``: wrapped bearings (in ``[-pi, pi)``) of line ends per model;
+    ``beams`` ``(C, n)``: beam bearings. With the beams in ``[-pi, pi]`` too (a scan's
+    are), ``x = phi - beam + pi`` lies in ``[-pi, 3 pi]``, where wrap_angle's
+    ``np.mod(x, 2 pi)`` is ``x``, ``x - 2 pi`` (exact, as is the remainder) or, for
+    ``x < 0``, ``x + 2 pi`` (numpy's remainder adds the divisor): the same values without
+    the float remainder, which is most of wrap_angle's time on these arrays.
+    """
+    offsets = phi[..., None, :] - beams[:, :, None]
+    if not np.abs(beams).max() <= np.pi:
+        return np.asarray(wrap_angle(offsets))
+    x = offsets + np.pi
+    x = np.where(x < 0.0, x + TWO_PI, np.where(x >= TWO_PI, x - TWO_PI, x)) - np.pi
+    # as wrap_angle: pi maps to -pi
+    return np.where(x >= np.pi, x - TWO_PI, x)
+
+
 def beam_line_correspondences(
     models: list[LandmarkModel],
     scan: Scan,
@@ -714,8 +733,7 @@ def beam_line_correspondences(
     usable = front & ~(near_a | near_b) & pm.valid  # front-facing, not radial
 
     # 2. Gate, per (model, beam, line).
-    delta_a = np.asarray(wrap_angle(phi_a[:, None, :] - bearings[:, :, None]))
-    delta_b = np.asarray(wrap_angle(phi_b[:, None, :] - bearings[:, :, None]))
+    delta_a, delta_b = _beam_offsets(np.stack((phi_a, phi_b)), bearings)
     angle = poses[:, 2, None] + bearings
     dv = va - vbm
     length = np.hypot(dv[..., 0], dv[..., 1])
