@@ -405,36 +405,33 @@ def _log_emg(x: np.ndarray, var: np.ndarray, lam: np.ndarray) -> np.ndarray:
     Two forms, each free of cancellation on its side of ``z = (x - lam s^2) / s = 0``:
     for ``z >= 0`` the direct form with ``log_ndtr(z)`` in ``[-log 2, 0]``; for
     ``z < 0``, ``Phi(z) = erfcx(-z / sqrt 2) exp(-z^2 / 2) / 2`` and the exponents
-    combine exactly to ``-x^2 / (2 s^2)``.
+    combine exactly to ``-x^2 / (2 s^2)``. Both are evaluated everywhere and the one of
+    each point's side kept (cheaper than masked assignments on these small arrays; the
+    other may overflow, silently).
     """
     s = np.sqrt(var)
     z = (x - lam * var) / s
-    out = np.empty_like(z)
-    pos = z >= 0.0
-    neg = ~pos
-    out[pos] = (
-        np.log(lam[pos])
-        - lam[pos] * x[pos]
-        + 0.5 * lam[pos] ** 2 * var[pos]
-        + special.log_ndtr(z[pos])
-    )
-    out[neg] = (
-        np.log(lam[neg])
-        - 0.5 * x[neg] ** 2 / var[neg]
-        + np.log(0.5 * special.erfcx(-z[neg] / _SQRT_2))
-    )
-    return out
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        return np.where(
+            z >= 0.0,
+            np.log(lam) - lam * x + 0.5 * lam**2 * var + special.log_ndtr(z),
+            np.log(lam) - 0.5 * x**2 / var + np.log(0.5 * special.erfcx(-z / _SQRT_2)),
+        )
 
 
 def _dlog_emg(x: np.ndarray, var: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Return ``d/dx`` of :func:`_log_emg`: ``-lam + phi(z) / (s Phi(z))``."""
+    """Return ``d/dx`` of :func:`_log_emg`: ``-lam + phi(z) / (s Phi(z))``.
+
+    Both forms of the tail evaluated everywhere, each point's kept (as there).
+    """
     s = np.sqrt(var)
     z = (x - lam * var) / s
-    mills = np.empty_like(z)
-    pos = z >= 0.0
-    neg = ~pos
-    mills[pos] = np.exp(-0.5 * z[pos] ** 2 - 0.5 * _LOG_2PI - special.log_ndtr(z[pos]))
-    mills[neg] = _SQRT_2_OVER_PI / special.erfcx(-z[neg] / _SQRT_2)
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        mills = np.where(
+            z >= 0.0,
+            np.exp(-0.5 * z**2 - 0.5 * _LOG_2PI - special.log_ndtr(z)),
+            _SQRT_2_OVER_PI / special.erfcx(-z / _SQRT_2),
+        )
     return -lam + mills / s
 
 
