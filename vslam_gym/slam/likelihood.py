@@ -415,7 +415,7 @@ def _log_emg(x: np.ndarray, var: np.ndarray, lam: np.ndarray) -> np.ndarray:
         return np.where(
             z >= 0.0,
             np.log(lam) - lam * x + 0.5 * lam**2 * var + special.log_ndtr(z),
-            np.log(lam) - 0.5 * x**2 / var + np.log(0.5 * special.erfcx(-z / _SQRT_2)),
+            np.log(lam) - 0.5 * x**2 / var + np.log(0.5 * special.erfcx(z / -_SQRT_2)),
         )
 
 
@@ -430,7 +430,7 @@ def _dlog_emg(x: np.ndarray, var: np.ndarray, lam: np.ndarray) -> np.ndarray:
         mills = np.where(
             z >= 0.0,
             np.exp(-0.5 * z**2 - 0.5 * _LOG_2PI - special.log_ndtr(z)),
-            _SQRT_2_OVER_PI / special.erfcx(-z / _SQRT_2),
+            _SQRT_2_OVER_PI / special.erfcx(z / -_SQRT_2),
         )
     return -lam + mills / s
 
@@ -563,6 +563,7 @@ class _ModeTerms(NamedTuple):
     """
 
     var: np.ndarray  # s^2 [m^2]
+    neg_var: np.ndarray  # -s^2 [m^2]
     s: np.ndarray  # s [m]
     lam_var: np.ndarray  # lam s^2 [m]
     neg_lam: np.ndarray  # -lam [1/m]
@@ -580,6 +581,7 @@ def _mode_terms(
     with np.errstate(divide="ignore"):
         return _ModeTerms(
             var=var,
+            neg_var=-var,
             s=np.sqrt(var),
             lam_var=lam * var,
             neg_lam=-lam,
@@ -608,7 +610,7 @@ def _mixture_derivatives(x: np.ndarray, t: _ModeTerms) -> tuple[np.ndarray, np.n
     var = t.var
     z = (x - t.lam_var) / t.s
     log_phi_tail = special.log_ndtr(z)  # accurate for z >= 0
-    erfcx_neg = special.erfcx(-z / _SQRT_2)  # accurate for z < 0
+    erfcx_neg = special.erfcx(z / -_SQRT_2)  # accurate for z < 0
     pos = z >= 0.0
     x2 = x**2
     log_tail_part = np.where(
@@ -626,12 +628,12 @@ def _mixture_derivatives(x: np.ndarray, t: _ModeTerms) -> tuple[np.ndarray, np.n
     g = np.logaddexp(gauss, unk)
     w_gauss = np.exp(gauss - g)
     w_unk = np.exp(unk - g)
-    d_gauss = -x / var
+    d_gauss = x / t.neg_var  # -x / s^2 (a negation is exact either side)
     d_unk = t.neg_lam + mills / t.s
     slope = w_gauss * d_gauss + w_unk * d_unk
     curvature = (
         w_gauss * t.neg_inv_var
-        + w_unk * (-mills * (z + mills) / var)
+        - w_unk * (mills * (z + mills) / var)
         + w_gauss * w_unk * (d_gauss - d_unk) ** 2
     )
     return slope, curvature
