@@ -175,7 +175,10 @@ def _check_index(name: str, value: object) -> int:
     return int(value)
 
 
-def _check_segment(scan: Scan, first: object, last: object) -> tuple[int, int]:
+def _check_segment(
+    scan: Scan, first: object, last: object, returns: np.ndarray | None = None
+) -> tuple[int, int]:
+    """``(first, last)`` as ints, or a ``ValueError``; ``returns``: ``scan.returns`` if known."""
     if not isinstance(scan, Scan):
         raise ValueError(f"scan must be a Scan, got {type(scan).__name__}")
     first = _check_index("first", first)
@@ -186,8 +189,8 @@ def _check_segment(scan: Scan, first: object, last: object) -> tuple[int, int]:
         raise ValueError(f"last = {last} is out of range for a scan of {scan.n} beams")
     if last < first:
         raise ValueError(f"segment beams must satisfy first <= last, got {first}..{last}")
-    returns = scan.returns[first : last + 1]
-    if not np.all(returns):
+    returns = (scan.returns if returns is None else returns)[first : last + 1]
+    if not returns.all():
         bad = first + np.flatnonzero(~returns)
         raise ValueError(
             f"segment {first}..{last} includes no-return (max-range) beams {bad[:5].tolist()}"
@@ -204,9 +207,10 @@ def _check_spans(
         return np.full(n_models, f), np.full(n_models, l_)
     firsts = np.broadcast_to(np.asarray(first), (n_models,))
     lasts = np.broadcast_to(np.asarray(last), (n_models,))
-    spans = [
-        _check_segment(scan, f, l_) for f, l_ in zip(firsts.tolist(), lasts.tolist(), strict=True)
-    ]
+    spans = list(zip(firsts.tolist(), lasts.tolist(), strict=True))
+    returns = scan.returns if isinstance(scan, Scan) else None
+    for f, l_ in dict.fromkeys(spans):  # each distinct set once (they repeat per candidate)
+        _check_segment(scan, f, l_, returns)
     return np.array([f for f, _ in spans]), np.array([l_ for _, l_ in spans])
 
 
@@ -565,10 +569,12 @@ def _vertex_polar_many(
     sensor: SensorConfig,
     config: ModelConfig,
     linearization: Linearization,
+    q: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_vertex_polar` of every model from its pose: means, covariances, ``near``.
 
-    ``(C, K, 2)``, ``(C, K, 2, 2)``, ``(C, K)``; padding vertices are garbage.
+    ``(C, K, 2)``, ``(C, K, 2, 2)``, ``(C, K)``; padding vertices are garbage. ``q``:
+    ``sensor.Q`` (a property that builds the matrix; the caller has it).
     """
     if not isinstance(linearization, FirstOrderLinearization):
         k = padded.mean.shape[1]
@@ -595,7 +601,7 @@ def _vertex_polar_many(
         polar_cov = jac @ blocks @ np.swapaxes(jac, -1, -2)
     if near.any():  # no bearing: Q only (see _vertex_polar)
         polar_cov[near] = 0.0
-    return polar_mean, polar_cov + sensor.Q, near
+    return polar_mean, polar_cov + q, near
 
 
 def _range_errors_many(
@@ -714,17 +720,20 @@ def beam_line_correspondences(
     # 1. Vertex bearings and each line's widened bearing interval, clamped to pi/2. A
     # near vertex (no bearing) takes the bearing of the line's other vertex: seen from
     # the pose, the line is radial and covers no bearing interval of its own.
+    polar_q = sensor.Q
     polar_mean, polar_cov, near = _vertex_polar_many(
-        pm, models, poses, sensor, config, linearization
+        pm, models, poses, sensor, config, linearization, polar_q
     )
     bearing = polar_mean[..., 1]
     margin = np.minimum(gate * np.sqrt(polar_cov[..., 1, 1]), _HALF_PI)
     a, b = pm.lines[..., 0], pm.lines[..., 1]
     near_a, near_b = near[cm, a], near[cm, b]
-    phi_a = np.where(near_a, bearing[cm, b], bearing[cm, a])
-    phi_b = np.where(near_b, bearing[cm, a], bearing[cm, b])
-    m_a = np.where(near_a, margin[cm, b], margin[cm, a])
-    m_b = np.where(near_b, margin[cm, a], margin[cm, b])
+    bearing_a, bearing_b = bearing[cm, a], bearing[cm, b]
+    margin_a, margin_b = margin[cm, a], margin[cm, b]
+    phi_a = np.where(near_a, bearing_b, bearing_a)
+    phi_b = np.where(near_b, bearing_a, bearing_b)
+    m_a = np.where(near_a, margin_b, margin_a)
+    m_b = np.where(near_b, margin_a, margin_b)
     va = pm.mean[cm, a]
     vbm = pm.mean[cm, b]
     rel_a = va - poses[:, None, :2]
@@ -751,7 +760,7 @@ def beam_line_correspondences(
     )
     if valid is not None:
         candidate &= valid[:, :, None]
-    gated = np.any(candidate, axis=2)
+    gated = candidate.any(axis=2)
 
     # Beams without candidates: one fallback pair each (scored only if not parallel).
     # Open chain: a beam left of the first vertex goes to the first line, one right of
@@ -786,7 +795,7 @@ def beam_line_correspondences(
         mu_p, var_p = _range_errors_many(
             ranges[row, beam_idx],
             bearings[row, beam_idx],
-            sensor.Q,
+            polar_q,
             poses,
             pair_c,
             pm.mu_vv[pair_c, line_idx],
