@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vslam_gym.config_utils import check_integers, dataclass_from_dict
-from vslam_gym.slam.geometry import check_pose, polar_to_cartesian, wrap_angle
+from vslam_gym.slam.geometry import check_pose, polar_to_cartesian, stack_last, wrap_angle
 
 __all__ = [
     "LocalMap",
@@ -350,13 +350,18 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> tuple[np.ndar
         rows = rows[(rows >= w) & (rows < m - w)]
         if rows.size == 0:
             break
-        nb = points[rows[:, None] + np.arange(-w, w + 1)[None, :]]  # (r, 2w+1, 2)
-        offset = nb - points[rows, None, :]
-        close = np.all(np.hypot(offset[..., 0], offset[..., 1]) <= config.normal_max_radius, axis=1)
-        d = nb - nb.mean(axis=1, keepdims=True)
-        cxx = np.mean(d[..., 0] ** 2, axis=1)
-        cyy = np.mean(d[..., 1] ** 2, axis=1)
-        cxy = np.mean(d[..., 0] * d[..., 1], axis=1)
+        size = 2 * w + 1
+        # (2w+1, r, 2), window-major: the patch mean is a fast sum over the first axis, in
+        # the same order (neighbour by neighbour) as over the middle axis of (r, 2w+1, 2).
+        nb = np.take(points, np.arange(-w, w + 1)[:, None] + rows[None, :], axis=0)
+        offset = nb - points[rows]
+        close = (np.hypot(offset[..., 0], offset[..., 1]) <= config.normal_max_radius).all(axis=0)
+        d = nb - nb.sum(axis=0) / size  # means as sum / size: np.mean's steps
+        dx, dy = d[..., 0].T, d[..., 1].T  # (r, 2w+1)
+        # The moments sum each row of a C-ordered (r, 2w+1) array (numpy's pairwise sum).
+        cxx = np.square(dx, order="C").sum(axis=1) / size
+        cyy = np.square(dy, order="C").sum(axis=1) / size
+        cxy = np.multiply(dx, dy, order="C").sum(axis=1) / size
         half_trace = 0.5 * (cxx + cyy)
         root = np.hypot(0.5 * (cxx - cyy), cxy)
         large, small = half_trace + root, half_trace - root
@@ -364,8 +369,9 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> tuple[np.ndar
         flat = small <= config.normal_max_flatness * large
         ok = close & wide & flat
         direction = 0.5 * np.arctan2(2.0 * cxy[ok], cxx[ok] - cyy[ok])  # principal axis
-        normals[rows[ok]] = np.stack([-np.sin(direction), np.cos(direction)], axis=1)
-        valid[rows[ok]] = True
+        found = rows[ok]
+        normals[found] = stack_last(-np.sin(direction), np.cos(direction))
+        valid[found] = True
     return normals, valid
 
 
