@@ -246,7 +246,12 @@ def _polar_jacobian(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
     """``(..., 2, 2)`` Jacobian of ``[range, bearing]`` w.r.t. the vertex, offsets ``dx, dy``."""
     r2 = dx**2 + dy**2
     r = np.sqrt(r2)
-    return np.stack([np.stack([dx / r, dy / r], -1), np.stack([-dy / r2, dx / r2], -1)], axis=-2)
+    jac = np.empty((*r.shape, 2, 2))
+    np.divide(dx, r, out=jac[..., 0, 0])
+    np.divide(dy, r, out=jac[..., 0, 1])
+    np.divide(-dy, r2, out=jac[..., 1, 0])
+    np.divide(dx, r2, out=jac[..., 1, 1])
+    return jac
 
 
 def vertex_polar_distribution(
