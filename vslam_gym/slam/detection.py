@@ -661,13 +661,16 @@ def _beam_offsets(phi: np.ndarray, beams: np.ndarray) -> np.ndarray:
     ``x < 0``, ``x + 2 pi`` (numpy's remainder adds the divisor): the same values without
     the float remainder, which is most of wrap_angle's time on these arrays.
     """
-    offsets = phi[..., None, :] - beams[:, :, None]
+    x = phi[..., None, :] - beams[:, :, None]
     if not np.abs(beams).max() <= np.pi:
-        return np.asarray(wrap_angle(offsets))
-    x = offsets + np.pi
-    x = np.where(x < 0.0, x + TWO_PI, np.where(x >= TWO_PI, x - TWO_PI, x)) - np.pi
-    # as wrap_angle: pi maps to -pi
-    return np.where(x >= np.pi, x - TWO_PI, x)
+        return np.asarray(wrap_angle(x))
+    x += np.pi
+    below, above = x < 0.0, x >= TWO_PI
+    np.add(x, TWO_PI, out=x, where=below)
+    np.subtract(x, TWO_PI, out=x, where=above)
+    x -= np.pi
+    np.subtract(x, TWO_PI, out=x, where=x >= np.pi)  # as wrap_angle: pi maps to -pi
+    return x
 
 
 def beam_line_correspondences(
