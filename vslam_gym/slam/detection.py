@@ -560,24 +560,23 @@ class _PaddedModels:
 
     def __init__(self, models: list[LandmarkModel], parts: list[ModelParts]) -> None:
         n_models = len(models)
-        k = max(m.n_vertices for m in models)
-        n_lines = max(m.n_lines for m in models)
+        sizes = [(m.n_vertices, m.n_lines) for m in models]
+        k = max(kc for kc, _ in sizes)
+        self.n_lines = np.array([lc for _, lc in sizes])
+        n_lines = int(self.n_lines.max())
         self.mean = np.zeros((n_models, k, 2))
         self.blocks = np.zeros((n_models, k, 2, 2))
         self.blocks[:, :, 0, 0] = self.blocks[:, :, 1, 1] = 1.0
         self.lines = np.zeros((n_models, n_lines, 2), dtype=int)
-        self.valid = np.zeros((n_models, n_lines), dtype=bool)
+        self.valid = np.arange(n_lines) < self.n_lines[:, None]
         self.u = np.zeros((n_models, n_lines))
         self.mu_vv = np.zeros((n_models, n_lines, 4))
         self.sigma_vv = np.zeros((n_models, n_lines, 4, 4))
-        self.n_lines = np.array([m.n_lines for m in models])
         self.closed = np.array([m.closed for m in models])
-        for c, (m, p) in enumerate(zip(models, parts, strict=True)):
-            kc, lc = m.n_vertices, m.n_lines
+        for c, (m, p, (kc, lc)) in enumerate(zip(models, parts, sizes, strict=True)):
             self.mean[c, :kc] = m.mean
             self.blocks[c, :kc] = p.blocks
             self.lines[c, :lc] = p.lines
-            self.valid[c, :lc] = True
             self.u[c, :lc] = m.u
             self.mu_vv[c, :lc], self.sigma_vv[c, :lc] = p.mu_vv, p.sigma_vv
 
