@@ -544,3 +544,22 @@ def test_beam_line_correspondences_checks_its_poses(trials):
     )
     assert all(np.all(np.isnan(q.d2)) for q in quick)
     np.testing.assert_array_equal(quick[0].line, quick[1].line)
+
+
+def test_beam_offsets_equal_wrap_angle_bit_for_bit():
+    """The gate's wrapped bearing offsets are wrap_angle's, without its float remainder."""
+    from vslam_gym.slam.detection import _beam_offsets
+    from vslam_gym.slam.geometry import wrap_angle
+
+    rng = np.random.default_rng(3)
+    edges = np.array([-np.pi, np.pi, 0.0, -0.0, np.nextafter(np.pi, 0.0), 1e-300, -1e-17])
+    phi = np.asarray(wrap_angle(rng.uniform(-4.0, 4.0, (2, 3, 40))))
+    phi[..., : edges.size] = wrap_angle(edges)
+    for beams in (
+        rng.uniform(-np.pi, np.pi, (3, 50)),
+        np.tile(edges, (3, 1)),
+        rng.uniform(-7.0, 7.0, (3, 50)),  # outside [-pi, pi]: wrap_angle itself
+    ):
+        got = _beam_offsets(phi, beams)
+        want = np.asarray(wrap_angle(phi[..., None, :] - beams[:, :, None]))
+        assert got.tobytes() == want.tobytes()

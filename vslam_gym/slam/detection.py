@@ -60,17 +60,15 @@ from vslam_gym.slam.gaussian import (
     Linearization,
     make_linearization,
 )
-from vslam_gym.slam.geometry import check_pose, stack_last, wrap_angle
+from vslam_gym.slam.geometry import TWO_PI, check_pose, stack_last, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 from vslam_gym.slam.likelihood import (
-    _expected_range_parts,
-    expected_range,
     exponential_rate,
     generalized_mahalanobis_sq_unchecked,
-    line_loglik,
-    object_loglik,
+    line_loglik_unchecked,
+    object_loglik_unchecked,
     range_error_distribution,
-    range_error_jacobian,
+    range_error_jacobian_rows,
 )
 from vslam_gym.slam.scan import Scan
 
@@ -177,7 +175,10 @@ def _check_index(name: str, value: object) -> int:
     return int(value)
 
 
-def _check_segment(scan: Scan, first: object, last: object) -> tuple[int, int]:
+def _check_segment(
+    scan: Scan, first: object, last: object, returns: np.ndarray | None = None
+) -> tuple[int, int]:
+    """``(first, last)`` as ints, or a ``ValueError``; ``returns``: ``scan.returns`` if known."""
     if not isinstance(scan, Scan):
         raise ValueError(f"scan must be a Scan, got {type(scan).__name__}")
     first = _check_index("first", first)
@@ -188,8 +189,8 @@ def _check_segment(scan: Scan, first: object, last: object) -> tuple[int, int]:
         raise ValueError(f"last = {last} is out of range for a scan of {scan.n} beams")
     if last < first:
         raise ValueError(f"segment beams must satisfy first <= last, got {first}..{last}")
-    returns = scan.returns[first : last + 1]
-    if not np.all(returns):
+    returns = (scan.returns if returns is None else returns)[first : last + 1]
+    if not returns.all():
         bad = first + np.flatnonzero(~returns)
         raise ValueError(
             f"segment {first}..{last} includes no-return (max-range) beams {bad[:5].tolist()}"
@@ -206,9 +207,10 @@ def _check_spans(
         return np.full(n_models, f), np.full(n_models, l_)
     firsts = np.broadcast_to(np.asarray(first), (n_models,))
     lasts = np.broadcast_to(np.asarray(last), (n_models,))
-    spans = [
-        _check_segment(scan, f, l_) for f, l_ in zip(firsts.tolist(), lasts.tolist(), strict=True)
-    ]
+    spans = list(zip(firsts.tolist(), lasts.tolist(), strict=True))
+    returns = scan.returns if isinstance(scan, Scan) else None
+    for f, l_ in dict.fromkeys(spans):  # each distinct set once (they repeat per candidate)
+        _check_segment(scan, f, l_, returns)
     return np.array([f for f, _ in spans]), np.array([l_ for _, l_ in spans])
 
 
@@ -219,6 +221,21 @@ def _check_model(model: LandmarkModel) -> None:
         raise ValueError(f"model must have at least one line, got {model.n_vertices} vertices")
     if not (np.isfinite(model.mean).all() and np.isfinite(model.cov).all()):
         raise ValueError("model mean and covariance must be finite")
+
+
+def _check_models(models: Sequence[LandmarkModel]) -> None:
+    """:func:`_check_model` of every model (in order: the first failure is reported).
+
+    The finite checks of all models at once when the models pass the others (the usual
+    case); else model by model.
+    """
+    if (
+        all(isinstance(m, LandmarkModel) and m.n_lines >= 1 for m in models)
+        and np.isfinite(np.concatenate([a.ravel() for m in models for a in (m.mean, m.cov)])).all()
+    ):
+        return
+    for m in models:
+        _check_model(m)
 
 
 # -------------------------------------------------------------- vertex polar Gaussians
@@ -244,7 +261,12 @@ def _polar_jacobian(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
     """``(..., 2, 2)`` Jacobian of ``[range, bearing]`` w.r.t. the vertex, offsets ``dx, dy``."""
     r2 = dx**2 + dy**2
     r = np.sqrt(r2)
-    return np.stack([np.stack([dx / r, dy / r], -1), np.stack([-dy / r2, dx / r2], -1)], axis=-2)
+    jac = np.empty((*r.shape, 2, 2))
+    np.divide(dx, r, out=jac[..., 0, 0])
+    np.divide(dy, r, out=jac[..., 0, 1])
+    np.divide(-dy, r2, out=jac[..., 1, 0])
+    np.divide(dx, r2, out=jac[..., 1, 1])
+    return jac
 
 
 def vertex_polar_distribution(
@@ -342,11 +364,10 @@ def _range_errors(
     if not isinstance(linearization, FirstOrderLinearization):
         return range_error_distribution(ranges, bearings, Q, pose, mu_vv, Sigma_vv, linearization)
     inputs = np.concatenate([ranges[:, None], bearings[:, None], mu_vv], axis=1)
-    jac = range_error_jacobian(inputs, pose)[:, 0, :]
+    jac, r_exp = range_error_jacobian_rows(inputs, pose)
     j_z, j_v = jac[:, :2], jac[:, 2:]
     var = np.sum((j_z @ Q) * j_z, axis=1) + (j_v[:, None, :] @ Sigma_vv @ j_v[:, :, None])[:, 0, 0]
-    mu = ranges - expected_range(bearings, mu_vv[:, :2], mu_vv[:, 2:], pose)
-    return mu, var
+    return ranges - r_exp, var
 
 
 # --------------------------------------------------------------------- correspondence
@@ -357,14 +378,19 @@ def _line_loglik(mu: np.ndarray, var: np.ndarray, u: np.ndarray, lam: float) -> 
 
     Evaluated as :func:`~vslam_gym.slam.likelihood.object_loglik` where ``u = 0``
     (identical there, without the unknown-line density the mixture would evaluate and
-    discard).
+    discard). One check of the range errors here instead of the library's per-call
+    input checks (``u`` and ``lam`` were validated with the models and by the caller).
     """
+    if not (np.isfinite(mu).all() and np.isfinite(var).all() and (var > 0.0).all()):
+        raise ValueError("range errors must be finite with variances > 0")
     out = np.empty_like(mu)
     obj = u == 0.0
-    if np.any(obj):
-        out[obj] = object_loglik(mu[obj], var[obj])
-    if not np.all(obj):
-        out[~obj] = line_loglik(mu[~obj], var[~obj], u[~obj], lam)
+    if obj.any():
+        out[obj] = object_loglik_unchecked(mu[obj], var[obj])
+    if not obj.all():
+        mixed = ~obj
+        lam_arr = np.full(int(np.count_nonzero(mixed)), lam)
+        out[mixed] = line_loglik_unchecked(mu[mixed], var[mixed], u[mixed], lam_arr)
     return out
 
 
@@ -534,24 +560,23 @@ class _PaddedModels:
 
     def __init__(self, models: list[LandmarkModel], parts: list[ModelParts]) -> None:
         n_models = len(models)
-        k = max(m.n_vertices for m in models)
-        n_lines = max(m.n_lines for m in models)
+        sizes = [(m.n_vertices, m.n_lines) for m in models]
+        k = max(kc for kc, _ in sizes)
+        self.n_lines = np.array([lc for _, lc in sizes])
+        n_lines = int(self.n_lines.max())
         self.mean = np.zeros((n_models, k, 2))
         self.blocks = np.zeros((n_models, k, 2, 2))
         self.blocks[:, :, 0, 0] = self.blocks[:, :, 1, 1] = 1.0
         self.lines = np.zeros((n_models, n_lines, 2), dtype=int)
-        self.valid = np.zeros((n_models, n_lines), dtype=bool)
+        self.valid = np.arange(n_lines) < self.n_lines[:, None]
         self.u = np.zeros((n_models, n_lines))
         self.mu_vv = np.zeros((n_models, n_lines, 4))
         self.sigma_vv = np.zeros((n_models, n_lines, 4, 4))
-        self.n_lines = np.array([m.n_lines for m in models])
         self.closed = np.array([m.closed for m in models])
-        for c, (m, p) in enumerate(zip(models, parts, strict=True)):
-            kc, lc = m.n_vertices, m.n_lines
+        for c, (m, p, (kc, lc)) in enumerate(zip(models, parts, sizes, strict=True)):
             self.mean[c, :kc] = m.mean
             self.blocks[c, :kc] = p.blocks
             self.lines[c, :lc] = p.lines
-            self.valid[c, :lc] = True
             self.u[c, :lc] = m.u
             self.mu_vv[c, :lc], self.sigma_vv[c, :lc] = p.mu_vv, p.sigma_vv
 
@@ -563,10 +588,12 @@ def _vertex_polar_many(
     sensor: SensorConfig,
     config: ModelConfig,
     linearization: Linearization,
+    q: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_vertex_polar` of every model from its pose: means, covariances, ``near``.
 
-    ``(C, K, 2)``, ``(C, K, 2, 2)``, ``(C, K)``; padding vertices are garbage.
+    ``(C, K, 2)``, ``(C, K, 2, 2)``, ``(C, K)``; padding vertices are garbage. ``q``:
+    ``sensor.Q`` (a property that builds the matrix; the caller has it).
     """
     if not isinstance(linearization, FirstOrderLinearization):
         k = padded.mean.shape[1]
@@ -593,7 +620,7 @@ def _vertex_polar_many(
         polar_cov = jac @ blocks @ np.swapaxes(jac, -1, -2)
     if near.any():  # no bearing: Q only (see _vertex_polar)
         polar_cov[near] = 0.0
-    return polar_mean, polar_cov + sensor.Q, near
+    return polar_mean, polar_cov + q, near
 
 
 def _range_errors_many(
@@ -616,15 +643,33 @@ def _range_errors_many(
                 ranges[sel], bearings[sel], Q, poses[c], mu_vv[sel], Sigma_vv[sel], linearization
             )
         return mu, var
-    pose = poses[owner]
     inputs = np.concatenate([ranges[:, None], bearings[:, None], mu_vv], axis=1)
-    jac = range_error_jacobian(inputs, pose)[:, 0, :]
+    jac, r_exp = range_error_jacobian_rows(inputs, poses[owner])
     j_z, j_v = jac[:, :2], jac[:, 2:]
     var = np.sum((j_z @ Q) * j_z, axis=1) + (j_v[:, None, :] @ Sigma_vv @ j_v[:, :, None])[:, 0, 0]
-    numerator, denominator, *_ = _expected_range_parts(bearings, mu_vv[:, :2], mu_vv[:, 2:], pose)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mu = ranges - numerator / denominator
-    return mu, var
+    return ranges - r_exp, var
+
+
+def _beam_offsets(phi: np.ndarray, beams: np.ndarray) -> np.ndarray:
+    """``wrap_angle(phi[..., None, :] - beams[:, :, None])`` ``(..., C, n, L)`` [rad].
+
+    ``phi`` ``(..., C, L)``: wrapped bearings (in ``[-pi, pi)``) of line ends per model;
+    ``beams`` ``(C, n)``: beam bearings. With the beams in ``[-pi, pi]`` too (a scan's
+    are), ``x = phi - beam + pi`` lies in ``[-pi, 3 pi]``, where wrap_angle's
+    ``np.mod(x, 2 pi)`` is ``x``, ``x - 2 pi`` (exact, as is the remainder) or, for
+    ``x < 0``, ``x + 2 pi`` (numpy's remainder adds the divisor): the same values without
+    the float remainder, which is most of wrap_angle's time on these arrays.
+    """
+    x = phi[..., None, :] - beams[:, :, None]
+    if not np.abs(beams).max() <= np.pi:
+        return np.asarray(wrap_angle(x))
+    x += np.pi
+    below, above = x < 0.0, x >= TWO_PI
+    np.add(x, TWO_PI, out=x, where=below)
+    np.subtract(x, TWO_PI, out=x, where=above)
+    x -= np.pi
+    np.subtract(x, TWO_PI, out=x, where=x >= np.pi)  # as wrap_angle: pi maps to -pi
+    return x
 
 
 def beam_line_correspondences(
@@ -667,8 +712,7 @@ def beam_line_correspondences(
     """
     if len(models) == 0:
         raise ValueError("models must hold at least one LandmarkModel")
-    for m in models:
-        _check_model(m)
+    _check_models(models)
     n_models = len(models)
     firsts, lasts = _check_spans(scan, first, last, n_models)
     poses = _check_poses(poses, n_models)
@@ -697,17 +741,20 @@ def beam_line_correspondences(
     # 1. Vertex bearings and each line's widened bearing interval, clamped to pi/2. A
     # near vertex (no bearing) takes the bearing of the line's other vertex: seen from
     # the pose, the line is radial and covers no bearing interval of its own.
+    polar_q = sensor.Q
     polar_mean, polar_cov, near = _vertex_polar_many(
-        pm, models, poses, sensor, config, linearization
+        pm, models, poses, sensor, config, linearization, polar_q
     )
     bearing = polar_mean[..., 1]
     margin = np.minimum(gate * np.sqrt(polar_cov[..., 1, 1]), _HALF_PI)
     a, b = pm.lines[..., 0], pm.lines[..., 1]
     near_a, near_b = near[cm, a], near[cm, b]
-    phi_a = np.where(near_a, bearing[cm, b], bearing[cm, a])
-    phi_b = np.where(near_b, bearing[cm, a], bearing[cm, b])
-    m_a = np.where(near_a, margin[cm, b], margin[cm, a])
-    m_b = np.where(near_b, margin[cm, a], margin[cm, b])
+    bearing_a, bearing_b = bearing[cm, a], bearing[cm, b]
+    margin_a, margin_b = margin[cm, a], margin[cm, b]
+    phi_a = np.where(near_a, bearing_b, bearing_a)
+    phi_b = np.where(near_b, bearing_a, bearing_b)
+    m_a = np.where(near_a, margin_b, margin_a)
+    m_b = np.where(near_b, margin_a, margin_b)
     va = pm.mean[cm, a]
     vbm = pm.mean[cm, b]
     rel_a = va - poses[:, None, :2]
@@ -716,8 +763,7 @@ def beam_line_correspondences(
     usable = front & ~(near_a | near_b) & pm.valid  # front-facing, not radial
 
     # 2. Gate, per (model, beam, line).
-    delta_a = np.asarray(wrap_angle(phi_a[:, None, :] - bearings[:, :, None]))
-    delta_b = np.asarray(wrap_angle(phi_b[:, None, :] - bearings[:, :, None]))
+    delta_a, delta_b = _beam_offsets(np.stack((phi_a, phi_b)), bearings)
     angle = poses[:, 2, None] + bearings
     dv = va - vbm
     length = np.hypot(dv[..., 0], dv[..., 1])
@@ -735,7 +781,7 @@ def beam_line_correspondences(
     )
     if valid is not None:
         candidate &= valid[:, :, None]
-    gated = np.any(candidate, axis=2)
+    gated = candidate.any(axis=2)
 
     # Beams without candidates: one fallback pair each (scored only if not parallel).
     # Open chain: a beam left of the first vertex goes to the first line, one right of
@@ -770,7 +816,7 @@ def beam_line_correspondences(
         mu_p, var_p = _range_errors_many(
             ranges[row, beam_idx],
             bearings[row, beam_idx],
-            sensor.Q,
+            polar_q,
             poses,
             pair_c,
             pm.mu_vv[pair_c, line_idx],
@@ -873,10 +919,14 @@ def _trimmed_statistics(d2: np.ndarray, config: ModelConfig) -> tuple[list, list
     k = int(np.floor(config.detection_trim_fraction * d2.shape[1]))
     if k > 0:
         d2 = np.partition(d2, d2.shape[1] - k - 1, axis=1)[:, : d2.shape[1] - k]
-    finite = np.all(np.isfinite(d2), axis=1)
+    finite = np.isfinite(d2).all(axis=1)
+    count = d2.shape[1]
     with np.errstate(invalid="ignore"):
-        mean_d2 = np.where(finite, np.mean(d2, axis=1), np.inf).tolist()
-        var_d2 = np.where(finite, np.var(d2, axis=1), np.inf).tolist()
+        # np.mean and np.var (ddof 0) by their own steps, without their overhead
+        mean = d2.sum(axis=1, keepdims=True) / count
+        var = np.square(d2 - mean).sum(axis=1) / count
+        mean_d2 = np.where(finite, mean[:, 0], np.inf).tolist()
+        var_d2 = np.where(finite, var, np.inf).tolist()
     return mean_d2, var_d2
 
 
@@ -940,7 +990,7 @@ def detect_many(
                 association=assoc,
                 mean_d2=mean,
                 var_d2=var,
-                loglik=float(np.sum(assoc.loglik)),
+                loglik=float(assoc.loglik.sum()),
             )
         )
     return out

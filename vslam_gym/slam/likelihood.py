@@ -17,7 +17,7 @@ beam for the unscented transform).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from scipy import special
@@ -60,6 +60,7 @@ _MAX_BRACKET_DOUBLINGS = 64
 _SYMMETRY_RTOL = 1e-9
 _LOG_2PI = float(np.log(2.0 * np.pi))
 _SQRT_2_OVER_PI = float(np.sqrt(2.0 / np.pi))
+_SQRT_2 = float(np.sqrt(2.0))
 
 
 # --------------------------------------------------------------------------- validation
@@ -211,6 +212,19 @@ def range_error_jacobian(inputs: np.ndarray, pose: np.ndarray) -> np.ndarray:
     Returns:
         Jacobian, shape (..., 1, 6) (one output row).
     """
+    return range_error_jacobian_rows(inputs, pose)[0][..., None, :]
+
+
+def range_error_jacobian_rows(
+    inputs: np.ndarray, pose: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`range_error_jacobian` without its output axis, and the expected ranges.
+
+    Returns:
+        The Jacobian rows ``(..., 6)`` (C-contiguous) and ``r_exp`` [m] ``(...)``, the
+        value :func:`expected_range` gives for the same beams and lines (computed on
+        the way; unchecked: ``+-inf`` or ``nan`` where a beam is parallel to its line).
+    """
     inputs = np.asarray(inputs, dtype=float)
     pose = np.asarray(pose, dtype=float)
     v_b = inputs[..., 4:6]
@@ -223,11 +237,13 @@ def range_error_jacobian(inputs: np.ndarray, pose: np.ndarray) -> np.ndarray:
     dn = stack_last(-by, bx, ay, -ax)
     # dD/d[v_ax, v_ay, v_bx, v_by]: D = cos(a) dv_y - sin(a) dv_x.
     dd = stack_last(-sin_a, cos_a, sin_a, -cos_a)
+    jac = np.empty((*r_exp.shape, _ERROR_INPUT_DIM))
+    jac[..., 0] = 1.0
     with np.errstate(divide="ignore", invalid="ignore"):
         d_phi = numerator * (cos_a * dvx + sin_a * dvy) / denominator**2
-        d_v = (dn - r_exp[..., None] * dd) / denominator[..., None]
-    jac = np.concatenate([np.ones_like(d_phi)[..., None], -d_phi[..., None], -d_v], axis=-1)
-    return jac[..., None, :]
+        np.negative(d_phi, out=jac[..., 1])
+        np.negative((dn - r_exp[..., None] * dd) / denominator[..., None], out=jac[..., 2:])
+    return jac, r_exp
 
 
 def range_error_distribution(
@@ -335,7 +351,12 @@ def object_loglik(mu_err: np.ndarray, var_err: np.ndarray) -> np.ndarray:
             broadcast.
     """
     mu, var = _broadcast(mu_err=_finite("mu_err", mu_err), var_err=_positive("var_err", var_err))
-    return -0.5 * (np.log(2.0 * np.pi * var) + mu**2 / var)
+    return object_loglik_unchecked(mu, var)
+
+
+def object_loglik_unchecked(mu_err: np.ndarray, var_err: np.ndarray) -> np.ndarray:
+    """:func:`object_loglik` of validated arrays of one shape (hot path, nothing checked)."""
+    return -0.5 * (np.log(2.0 * np.pi * var_err) + mu_err**2 / var_err)
 
 
 def exponential_rate(ranges: np.ndarray, max_range: float) -> float:
@@ -384,36 +405,33 @@ def _log_emg(x: np.ndarray, var: np.ndarray, lam: np.ndarray) -> np.ndarray:
     Two forms, each free of cancellation on its side of ``z = (x - lam s^2) / s = 0``:
     for ``z >= 0`` the direct form with ``log_ndtr(z)`` in ``[-log 2, 0]``; for
     ``z < 0``, ``Phi(z) = erfcx(-z / sqrt 2) exp(-z^2 / 2) / 2`` and the exponents
-    combine exactly to ``-x^2 / (2 s^2)``.
+    combine exactly to ``-x^2 / (2 s^2)``. Both are evaluated everywhere and the one of
+    each point's side kept (cheaper than masked assignments on these small arrays; the
+    other may overflow, silently).
     """
     s = np.sqrt(var)
     z = (x - lam * var) / s
-    out = np.empty_like(z)
-    pos = z >= 0.0
-    neg = ~pos
-    out[pos] = (
-        np.log(lam[pos])
-        - lam[pos] * x[pos]
-        + 0.5 * lam[pos] ** 2 * var[pos]
-        + special.log_ndtr(z[pos])
-    )
-    out[neg] = (
-        np.log(lam[neg])
-        - 0.5 * x[neg] ** 2 / var[neg]
-        + np.log(0.5 * special.erfcx(-z[neg] / np.sqrt(2.0)))
-    )
-    return out
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        return np.where(
+            z >= 0.0,
+            np.log(lam) - lam * x + 0.5 * lam**2 * var + special.log_ndtr(z),
+            np.log(lam) - 0.5 * x**2 / var + np.log(0.5 * special.erfcx(z / -_SQRT_2)),
+        )
 
 
 def _dlog_emg(x: np.ndarray, var: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Return ``d/dx`` of :func:`_log_emg`: ``-lam + phi(z) / (s Phi(z))``."""
+    """Return ``d/dx`` of :func:`_log_emg`: ``-lam + phi(z) / (s Phi(z))``.
+
+    Both forms of the tail evaluated everywhere, each point's kept (as there).
+    """
     s = np.sqrt(var)
     z = (x - lam * var) / s
-    mills = np.empty_like(z)
-    pos = z >= 0.0
-    neg = ~pos
-    mills[pos] = np.exp(-0.5 * z[pos] ** 2 - 0.5 * _LOG_2PI - special.log_ndtr(z[pos]))
-    mills[neg] = _SQRT_2_OVER_PI / special.erfcx(-z[neg] / np.sqrt(2.0))
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        mills = np.where(
+            z >= 0.0,
+            np.exp(-0.5 * z**2 - 0.5 * _LOG_2PI - special.log_ndtr(z)),
+            _SQRT_2_OVER_PI / special.erfcx(z / -_SQRT_2),
+        )
     return -lam + mills / s
 
 
@@ -492,9 +510,22 @@ def line_loglik(
         ValueError: non-finite input, non-positive ``var_err`` or ``lam``, ``u`` outside
             ``[0, 1]``, shapes that do not broadcast.
     """
-    x, var, _, lam_arr, log_u, log_1mu = _line_parts(mu_err, var_err, u, lam)
-    g, _, _ = _relative_mixture_log(x, var, lam_arr, log_u, log_1mu)
-    return g - 0.5 * np.log(2.0 * np.pi * var)
+    x, var, u_arr, lam_arr, _, _ = _line_parts(mu_err, var_err, u, lam)
+    return line_loglik_unchecked(x, var, u_arr, lam_arr)
+
+
+def line_loglik_unchecked(
+    mu_err: np.ndarray, var_err: np.ndarray, u: np.ndarray, lam: np.ndarray
+) -> np.ndarray:
+    """:func:`line_loglik` of validated arrays of one shape (hot path, nothing checked).
+
+    The caller guarantees finite ``mu_err``, ``var_err > 0``, ``u`` in ``[0, 1]`` and
+    ``lam > 0``, all of the same shape (``lam`` may be a broadcast view).
+    """
+    with np.errstate(divide="ignore"):
+        log_u, log_1mu = np.log(u), np.log1p(-u)
+    g, _, _ = _relative_mixture_log(mu_err, var_err, lam, log_u, log_1mu)
+    return g - 0.5 * np.log(2.0 * np.pi * var_err)
 
 
 def set_loglik(
@@ -524,9 +555,45 @@ def _mixture_slope(
     return w_gauss * (-x / var) + w_unk * _dlog_emg(x, var, lam)
 
 
-def _mixture_derivatives(
-    x: np.ndarray, var: np.ndarray, lam: np.ndarray, log_u: np.ndarray, log_1mu: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+class _ModeTerms(NamedTuple):
+    """The ``x``-free parts of :func:`_mixture_derivatives`, per point (1-D arrays).
+
+    Computed once per mode search (:func:`_density_mode`) instead of once per Newton
+    step; each is the same expression the step evaluated, so the steps are unchanged.
+    """
+
+    var: np.ndarray  # s^2 [m^2]
+    neg_var: np.ndarray  # -s^2 [m^2]
+    s: np.ndarray  # s [m]
+    lam_var: np.ndarray  # lam s^2 [m]
+    neg_lam: np.ndarray  # -lam [1/m]
+    half_lam2_var: np.ndarray  # 0.5 lam^2 s^2
+    neg_inv_var: np.ndarray  # -1 / s^2 [1/m^2]
+    log_1mu: np.ndarray  # log(1 - u)
+    log_u_lam: np.ndarray  # log(u) + log(lam)
+    half_log_2pi_var: np.ndarray  # 0.5 log(2 pi s^2)
+
+
+def _mode_terms(
+    var: np.ndarray, lam: np.ndarray, log_u: np.ndarray, log_1mu: np.ndarray
+) -> _ModeTerms:
+    """:class:`_ModeTerms` of points with variances ``var``, rates ``lam`` and log weights."""
+    with np.errstate(divide="ignore"):
+        return _ModeTerms(
+            var=var,
+            neg_var=-var,
+            s=np.sqrt(var),
+            lam_var=lam * var,
+            neg_lam=-lam,
+            half_lam2_var=0.5 * lam**2 * var,
+            neg_inv_var=-1.0 / var,
+            log_1mu=log_1mu,
+            log_u_lam=log_u + np.log(lam),
+            half_log_2pi_var=0.5 * np.log(2.0 * np.pi * var),
+        )
+
+
+def _mixture_derivatives(x: np.ndarray, t: _ModeTerms) -> tuple[np.ndarray, np.ndarray]:
     """First and second ``x``-derivatives of ``log p`` of the line density (Newton steps).
 
     One evaluation of the standard normal tail per point serves both. With
@@ -536,35 +603,37 @@ def _mixture_derivatives(
     ``g = logaddexp(G, U)`` has ``g' = w_G G' + w_U U'`` and
     ``g'' = w_G G'' + w_U U'' + w_G w_U (G' - U')^2`` with the posterior weights ``w``.
     Both tail forms are evaluated everywhere and the cancellation-free one kept (as in
-    :func:`_log_emg`), which avoids masked assignments on these small arrays.
+    :func:`_log_emg`), which avoids masked assignments on these small arrays. The
+    caller ignores floating-point warnings (overflow and division by zero in the
+    discarded forms; :func:`_density_mode`).
     """
-    s = np.sqrt(var)
-    z = (x - lam * var) / s
-    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-        log_phi_tail = special.log_ndtr(z)  # accurate for z >= 0
-        erfcx_neg = special.erfcx(-z / np.sqrt(2.0))  # accurate for z < 0
-        pos = z >= 0.0
-        log_tail_part = np.where(
-            pos,
-            -lam * x + 0.5 * lam**2 * var + log_phi_tail,
-            -0.5 * x**2 / var + np.log(0.5 * erfcx_neg),
-        )
-        mills = np.where(
-            pos,
-            np.exp(-0.5 * z**2 - 0.5 * _LOG_2PI - log_phi_tail),
-            _SQRT_2_OVER_PI / erfcx_neg,
-        )
-    gauss = log_1mu - 0.5 * (x**2 / var)
-    unk = log_u + np.log(lam) + log_tail_part + 0.5 * np.log(2.0 * np.pi * var)
+    var = t.var
+    z = (x - t.lam_var) / t.s
+    log_phi_tail = special.log_ndtr(z)  # accurate for z >= 0
+    erfcx_neg = special.erfcx(z / -_SQRT_2)  # accurate for z < 0
+    pos = z >= 0.0
+    x2 = x**2
+    log_tail_part = np.where(
+        pos,
+        t.neg_lam * x + t.half_lam2_var + log_phi_tail,
+        -0.5 * x2 / var + np.log(0.5 * erfcx_neg),
+    )
+    mills = np.where(
+        pos,
+        np.exp(-0.5 * z**2 - 0.5 * _LOG_2PI - log_phi_tail),
+        _SQRT_2_OVER_PI / erfcx_neg,
+    )
+    gauss = t.log_1mu - 0.5 * (x2 / var)
+    unk = t.log_u_lam + log_tail_part + t.half_log_2pi_var
     g = np.logaddexp(gauss, unk)
     w_gauss = np.exp(gauss - g)
     w_unk = np.exp(unk - g)
-    d_gauss = -x / var
-    d_unk = -lam + mills / s
+    d_gauss = x / t.neg_var  # -x / s^2 (a negation is exact either side)
+    d_unk = t.neg_lam + mills / t.s
     slope = w_gauss * d_gauss + w_unk * d_unk
     curvature = (
-        w_gauss * (-1.0 / var)
-        + w_unk * (-mills * (z + mills) / var)
+        w_gauss * t.neg_inv_var
+        - w_unk * (mills * (z + mills) / var)
         + w_gauss * w_unk * (d_gauss - d_unk) ** 2
     )
     return slope, curvature
@@ -612,27 +681,29 @@ def _density_mode(
     tolerance = _MODE_TOLERANCE * sigma
     x = lo.copy()
     running = None if groups is None else np.ones(x.size, dtype=bool)
-    for _ in range(2 * _BISECTION_ITERATIONS):
-        slope, curvature = _mixture_derivatives(x, var, lam, log_u, log_1mu)
-        up = slope > 0.0
-        lo = np.where(up, x, lo)
-        hi = np.where(up, hi, x)
-        with np.errstate(divide="ignore", invalid="ignore"):
+    n_groups = 0 if groups is None else int(groups.max()) + 1
+    terms = _mode_terms(var, lam, log_u, log_1mu)
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        for _ in range(2 * _BISECTION_ITERATIONS):
+            slope, curvature = _mixture_derivatives(x, terms)
+            up = slope > 0.0
+            lo = np.where(up, x, lo)
+            hi = np.where(up, hi, x)
             newton = x - slope / curvature
-        inside = (curvature < 0.0) & (newton >= lo) & (newton <= hi)
-        x_new = np.where(inside, newton, 0.5 * (lo + hi))
-        big = ~(np.abs(x_new - x) <= tolerance)
-        if running is None:
-            x = x_new
-            if not np.any(big):
+            inside = (curvature < 0.0) & (newton >= lo) & (newton <= hi)
+            x_new = np.where(inside, newton, 0.5 * (lo + hi))
+            big = ~(np.abs(x_new - x) <= tolerance)
+            if running is None:
+                x = x_new
+                if not big.any():
+                    break
+                continue
+            x = np.where(running, x_new, x)
+            # A group whose running points all took a small step is done.
+            unfinished = np.bincount(groups[running & big], minlength=n_groups) > 0
+            running &= unfinished[groups]
+            if not running.any():
                 break
-            continue
-        x = np.where(running, x_new, x)
-        # A group whose running points all took a small step is done.
-        unfinished = np.bincount(groups[running & big], minlength=groups.max() + 1) > 0
-        running &= unfinished[groups]
-        if not np.any(running):
-            break
     return x
 
 
@@ -715,7 +786,7 @@ def generalized_mahalanobis_sq_unchecked(
     n = x.size
     both = np.concatenate([x_mode, x])
     rel = _relative_mixture_log(
-        both, np.tile(var, 2), np.tile(lam, 2), np.tile(log_u, 2), np.tile(log_1mu, 2)
+        both, *(np.concatenate([a, a]) for a in (var, lam, log_u, log_1mu))
     )[0]
     return np.maximum(2.0 * (rel[:n] - rel[n:]), 0.0)
 
