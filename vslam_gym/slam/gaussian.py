@@ -77,7 +77,9 @@ def _as_square(S: np.ndarray, name: str) -> np.ndarray:
 def symmetrize(S: np.ndarray) -> np.ndarray:
     """Return ``(S + S^T) / 2`` over the last two axes (batched over leading dims)."""
     S = _as_square(S, "matrix")
-    return 0.5 * (S + S.swapaxes(-1, -2))
+    out = S + S.swapaxes(-1, -2)
+    out *= 0.5
+    return out
 
 
 def inflated_information(
@@ -589,9 +591,11 @@ def _index_array(indices: Sequence[int] | np.ndarray, dim: int, where: str) -> n
         return np.zeros(0, dtype=int)
     if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
         raise ValueError(f"{where}: indices must be a 1-D sequence of integers, got {indices!r}")
-    if np.any(idx < -dim) or np.any(idx >= dim):
+    low, high = idx.min(), idx.max()
+    if low < -dim or high >= dim:
         raise ValueError(f"{where}: index out of range for dimension {dim}: {idx.tolist()}")
-    idx = np.where(idx < 0, idx + dim, idx)
+    if low < 0:
+        idx = np.where(idx < 0, idx + dim, idx)
     if np.unique(idx).size != idx.size:
         raise ValueError(f"{where}: repeated indices {idx.tolist()}")
     return idx
@@ -701,7 +705,9 @@ class Canonical:
         if m.size == 0:
             return Canonical(K_kk, h_k)
         K_mm = self.K[m[:, None], m]
-        rhs = np.column_stack([self.K[m[:, None], k], self.h[m]])
+        rhs = np.empty((m.size, k.size + 1))  # [K_mk, h_m]
+        rhs[:, :-1] = self.K[m[:, None], k]
+        rhs[:, -1] = self.h[m]
         solution = _solve_psd(K_mm, rhs, "Canonical.marginalize block K_mm")
         K_km = self.K[k[:, None], m]
         correction = K_km @ solution
