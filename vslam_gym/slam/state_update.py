@@ -117,9 +117,12 @@ class LandmarkConditional:
     def covariance(self) -> np.ndarray:
         """``Sigma_v = K^-1`` ``(2k, 2k)`` (computed once; treat it as read-only)."""
         if self._cov is None:
-            self._cov = symmetrize(
-                scipy.linalg.cho_solve((np.linalg.cholesky(self.K), True), np.eye(self.K.shape[0]))
-            )
+            lower = np.linalg.cholesky(self.K)
+            eye = np.eye(self.K.shape[0])
+            if np.isfinite(lower).all():
+                self._cov = symmetrize(cho_solve_finite(lower, eye))
+            else:  # scipy's finiteness check raises its error
+                self._cov = symmetrize(scipy.linalg.cho_solve((lower, True), eye))
         return self._cov
 
     def select(

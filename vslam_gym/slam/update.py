@@ -90,6 +90,8 @@ from vslam_gym.slam.gaussian import (
     Canonical,
     Linearization,
     NotPositiveDefiniteError,
+    cho_factor_finite,
+    cho_solve_finite,
     ensure_spd,
     make_linearization,
     symmetrize,
@@ -1242,8 +1244,12 @@ def observation_conditional(
     if G.shape[0] == 0:
         return np.zeros((G.shape[1], 3)), np.zeros(G.shape[1])
     K_sel = symmetrize(G @ K_obs @ G.T)
-    factor = scipy.linalg.cho_factor(ensure_spd(K_sel, "observed information G K_obs G^T"))
-    mu_sel = scipy.linalg.cho_solve(factor, G @ h_obs)
+    upper = cho_factor_finite(ensure_spd(K_sel, "observed information G K_obs G^T"))  # finite
+    h_sel = G @ h_obs
+    if np.isfinite(h_sel).all():
+        mu_sel = cho_solve_finite(upper, h_sel, lower=False)
+    else:  # scipy's finiteness check raises its error
+        mu_sel = scipy.linalg.cho_solve((upper, False), h_sel)
     a_sel, b_sel = conditional_on_pose(mu_sel.reshape(-1, 2), pose)
     return G.T @ a_sel, G.T @ b_sel
 
