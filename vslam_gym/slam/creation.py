@@ -104,6 +104,16 @@ def _oriented_line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return p0, d * sign[..., None]
 
 
+def _segment_lengths(points: np.ndarray) -> np.ndarray:
+    """``(n - 1,)`` lengths [m] of the segments between consecutive ``(n, 2)`` points.
+
+    ``np.linalg.norm(np.diff(points, axis=0), axis=1)`` by its own arithmetic (the sum of
+    the two squares, then the root) without its overhead.
+    """
+    d = points[1:] - points[:-1]
+    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+
+
 def _intersect(pa, da, pb, db):
     """Intersection of lines ``pa + t da`` and ``pb + s db`` and the sine between them."""
     cross = da[..., 0] * db[..., 1] - da[..., 1] * db[..., 0]
@@ -809,7 +819,7 @@ def unknown_probabilities(
     """
     lo, hi = config.unknown_bounds(sensor)
     gaps = np.array([b - a for a, b in groups], dtype=float)
-    d = np.linalg.norm(np.diff(mu_v, axis=0), axis=1) / np.maximum(gaps, 1.0)
+    d = _segment_lengths(mu_v) / np.maximum(gaps, 1.0)
     return np.clip((d - lo) / (hi - lo), 0.0, 1.0)
 
 

@@ -75,6 +75,7 @@ from vslam_gym.slam.creation import (
     _intersect,
     _parallel_pairs,
     _points,
+    _segment_lengths,
     _SegmentModeller,
     _vertex_function,
     coarseness_variances,
@@ -96,6 +97,7 @@ from vslam_gym.slam.gaussian import (
     make_linearization,
     symmetrize,
 )
+from vslam_gym.slam.geometry import stack_last
 from vslam_gym.slam.landmark import LandmarkModel, conditional_on_pose
 from vslam_gym.slam.likelihood import exponential_rate
 from vslam_gym.slam.scan import Scan
@@ -517,13 +519,14 @@ def _refine_boundaries(
         A new ``(n,)`` array of line indices per beam.
     """
     line = line_of_beam.copy()
-    points = _points(
-        np.stack([scan.ranges, scan.bearings], axis=1)[first : first + line.size].reshape(-1),
-        pose,
-    )
+    beams = slice(first, first + line.size)
+    points = _points(stack_last(scan.ranges[beams], scan.bearings[beams]).reshape(-1), pose)
+    counts = np.bincount(line[line >= 0])  # beams per line, kept up to date
     for j in range(int(line.max(initial=-1))):
+        if min(counts[j], counts[j + 1]) < config.min_beams_per_line:
+            continue
         left, right = np.flatnonzero(line == j), np.flatnonzero(line == j + 1)
-        if min(left.size, right.size) < config.min_beams_per_line or right[0] != left[-1] + 1:
+        if right[0] != left[-1] + 1:
             continue
         a, b = int(left[0]), int(right[-1])
         if np.any(line[a : b + 1] < j) or np.any(line[a : b + 1] > j + 1):
@@ -545,6 +548,7 @@ def _refine_boundaries(
         )[0][1]
         line[a : a + split + 1] = j
         line[a + split + 1 : b + 1] = j + 1
+        counts = np.bincount(line[line >= 0], minlength=counts.size)
     return line
 
 
@@ -653,11 +657,11 @@ def observed_lines(
     matched: dict[int, tuple[bool, bool]] = {}
     none = np.zeros(0, dtype=int)
     for i in range(m):
-        beams = np.flatnonzero(line_of_beam == i) + first
         if not observed[i]:
             zeta.append((0,))
             lines.append(NewLine(i, 0, False, none, (-1, -1)))
             continue
+        beams = np.flatnonzero(line_of_beam == i) + first
         a, b = int(beams[0]), int(beams[-1])
         if model.u[i] <= config.unknown_threshold:
             zeta.append((1,))
@@ -910,7 +914,7 @@ def _fit_run(
     idx = _block_indices(np.flatnonzero(keep))
     informed = [v for v, k in zip(vertices, keep, strict=True) if k]
     run = Run((t0, t1), s, e, tuple(informed), tuple(dropped))
-    return informed, mu_all[idx], symmetrize(sigma_all[np.ix_(idx, idx)]), dropped, u_lines, run
+    return informed, mu_all[idx], symmetrize(sigma_all[idx[:, None], idx]), dropped, u_lines, run
 
 
 def _end_correction(config: ModelConfig) -> bool:
@@ -1083,13 +1087,14 @@ def _end_quantization(
         ds = _spacing_beyond(v[end], along, scan, beam, step, pose, sensor)
         if ds is None:
             unbounded.append(end)
-        idx = _block_indices([end % v.shape[0]])
+        i = end % v.shape[0]
+        block = slice(2 * i, 2 * i + 2)  # the vertex's coordinates
         if ds is not None and not occluded[side]:
-            mu[idx] += 0.5 * ds * along
-            sigma[np.ix_(idx, idx)] += (ds**2 / 12.0) * np.outer(along, along)
+            mu[block] += 0.5 * ds * along
+            sigma[block, block] += (ds**2 / 12.0) * np.outer(along, along)
         elif across[side] is not None:
             reach = max(float(along @ (across[side] - v[end])), 0.0)
-            sigma[np.ix_(idx, idx)] += (reach**2 / 3.0) * np.outer(along, along)
+            sigma[block, block] += (reach**2 / 3.0) * np.outer(along, along)
     return mu, sigma, unbounded
 
 
@@ -1144,7 +1149,7 @@ def observed_parameters(
         if informed:
             canon = Canonical.from_moments(mu, sigma)
             idx = _block_indices(informed)
-            K[np.ix_(idx, idx)] = canon.K
+            K[idx[:, None], idx] = canon.K
             h[idx] = canon.h
     return ObservedParameters(K, h, u_obs, tuple(runs))
 
@@ -1467,8 +1472,7 @@ def _chain_crossing(left: _Chain, right: _Chain) -> tuple[int, int, float, float
     nl, nr = len(left), len(right)
     if nl < 2 or nr < 2:
         return None
-    seg_l = np.linalg.norm(np.diff(left.mean, axis=0), axis=1)
-    seg_r = np.linalg.norm(np.diff(right.mean, axis=0), axis=1)
+    seg_l, seg_r = _segment_lengths(left.mean), _segment_lengths(right.mean)
     best = None
     # All segment pairs at once; the (few) crossings are then ranked in (i, j) order.
     ok, s_all, t_all = _segments_params(
@@ -1582,8 +1586,11 @@ def update_unknown_lines(
     # A vertex met twice (a prior unknown vertex that the observation also reached) is
     # kept once, in the core if there; other occurrences become independent copies.
     source = full.source.copy()
-    order = np.r_[np.arange(len(left), len(left) + len(core)), np.arange(len(left))]
-    order = np.r_[order, np.arange(len(left) + len(core), k)]
+    order = [
+        *range(len(left), len(left) + len(core)),
+        *range(len(left)),
+        *range(len(left) + len(core), k),
+    ]
     seen: set[int] = set()
     for i in order:
         if source[i] >= 0:
