@@ -131,7 +131,7 @@ def _principal_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     principal axis of the scatter matrix) without its input checks, for the hot paths;
     ``psi`` lies in ``(-pi/2, pi/2]``.
     """
-    p0 = points.mean(axis=-2)
+    p0 = points.sum(axis=-2) / points.shape[-2]  # np.mean's arithmetic
     e = points - p0[..., None, :]
     ex, ey = e[..., 0], e[..., 1]
     sxx, syy, sxy = (ex * ex).sum(-1), (ey * ey).sum(-1), (ex * ey).sum(-1)
@@ -656,19 +656,17 @@ def _first_order_vertices(
     j_rho = np.zeros((m + 2, n_in))
     j_psi = np.zeros((m + 2, n_in))
     lines_p = np.empty((m + 2, 2))
-    lines_d = np.empty((m + 2, 2))
-    lines_p[[0, -1]] = pose[:2]
-    end_angles = pose[2] + modeller.z[[1, -1]]
-    lines_d[[0, -1]] = stack_last(np.cos(end_angles), np.sin(end_angles))
+    angles = np.empty(m + 2)  # of the lines' directions [rad]
+    lines_p[0] = lines_p[-1] = pose[:2]
+    angles[0], angles[-1] = pose[2] + modeller.z[1], pose[2] + modeller.z[-1]
     j_psi[0, 1] = 1.0  # the left end line turns with the first beam's bearing
     j_psi[-1, 2 * n - 1] = 1.0  # the right one with the last beam's
 
     # The line geometry per line as in _principal_axis (the vertex means then agree to the
     # last bit with a line-by-line evaluation; downstream ICP is sensitive to that).
     for k, (lo, hi) in enumerate(slices, start=1):
-        p0, psi = _principal_axis(modeller.points[lo : hi + 1])
-        lines_p[k] = p0
-        lines_d[k] = np.cos(psi), np.sin(psi)
+        lines_p[k], angles[k] = _principal_axis(modeller.points[lo : hi + 1])
+    lines_d = stack_last(np.cos(angles), np.sin(angles))  # elementwise: as line by line
     dx, dy = lines_d[1:-1, 0, None], lines_d[1:-1, 1, None]  # normal (-dy, dx)
     gap = np.hypot(fit.sxx - fit.syy, 2.0 * fit.sxy)[:, None]
     de = fit.ex * dx + fit.ey * dy
@@ -682,7 +680,7 @@ def _first_order_vertices(
     rho_phi = (dy * s_ + dx * c) * r / fit.cnt[:, None]
     psi_r = gx * c + gy * s_
     psi_phi = (-gx * s_ + gy * c) * r
-    rows = np.broadcast_to(np.arange(1, m + 1)[:, None], fit.idx.shape)[fit.mask]
+    rows = np.repeat(np.arange(1, m + 1), fit.lengths)  # the mask's row of each entry
     cols = 2 * fit.idx[fit.mask]
     j_rho[rows, cols], j_rho[rows, cols + 1] = rho_r[fit.mask], rho_phi[fit.mask]
     j_psi[rows, cols], j_psi[rows, cols + 1] = psi_r[fit.mask], psi_phi[fit.mask]
@@ -692,12 +690,13 @@ def _first_order_vertices(
     # Vertex i joins lines i (A) and i + 1 (B): solve [n_A; n_B] v = [n_A . p_A; n_B . p_B].
     pa, da, pb, db = lines_p[:-1], lines_d[:-1], lines_p[1:], lines_d[1:]
     normals = stack_last(-lines_d[:, 1], lines_d[:, 0])
-    offsets = np.array([nrm @ p for nrm, p in zip(normals, lines_p, strict=True)])
-    mat = np.stack([normals[:-1], normals[1:]], axis=-2)  # (m + 1, 2, 2)
+    offsets = np.vecdot(normals, lines_p)  # row by row, as nrm @ p (the same dot kernel)
+    mat = np.empty((m + 1, 2, 2))
+    mat[:, 0], mat[:, 1] = normals[:-1], normals[1:]
     mu = np.linalg.solve(mat, stack_last(offsets[:-1], offsets[1:])[..., None])[..., 0]
     inv = np.linalg.inv(mat)
-    row_a = j_rho[:-1] + np.sum(da * (mu - pa), axis=1)[:, None] * j_psi[:-1]
-    row_b = j_rho[1:] + np.sum(db * (mu - pb), axis=1)[:, None] * j_psi[1:]
+    row_a = j_rho[:-1] + (da * (mu - pa)).sum(1)[:, None] * j_psi[:-1]
+    row_b = j_rho[1:] + (db * (mu - pb)).sum(1)[:, None] * j_psi[1:]
     jac = inv[:, :, 0, None] * row_a[:, None, :] + inv[:, :, 1, None] * row_b[:, None, :]
     jac = jac.reshape(2 * (m + 1), n_in)
     var_in = np.concatenate([modeller.var, offset_var])
