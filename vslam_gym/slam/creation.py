@@ -80,7 +80,9 @@ def _stacked(scan: Scan, first: int, last: int, sensor: SensorConfig):
     z = np.empty(2 * n)
     z[0::2] = scan.ranges[first : last + 1]
     z[1::2] = scan.bearings[first : last + 1]
-    return z, np.tile([sensor.sigma_range**2, sensor.sigma_bearing**2], n)
+    var = np.empty(2 * n)
+    var[0::2], var[1::2] = sensor.sigma_range**2, sensor.sigma_bearing**2
+    return z, var
 
 
 def _points(x: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -565,12 +567,14 @@ def _parallel_pairs(modeller: _SegmentModeller, groups: list[tuple[int, int]]) -
     """Sine of the angle between each pair of adjacent lines (end lines included)."""
     pts = modeller.points
     fit = modeller.span_fits(groups)
-    d = stack_last(np.cos(fit.psi), np.sin(fit.psi))
+    d = np.empty((len(groups) + 2, 2))  # end line, the groups' lines, end line
+    d[0], d[-1] = pts[0] - modeller.pose[:2], pts[-1] - modeller.pose[:2]
+    lines = d[1:-1]
+    lines[:, 0], lines[:, 1] = np.cos(fit.psi), np.sin(fit.psi)
     # Oriented from each group's first towards its last point (as _oriented_line).
     ends = np.asarray(groups, dtype=int).reshape(-1, 2)
     span = pts[ends[:, 1]] - pts[ends[:, 0]]
-    d = d * np.where(np.sum(d * span, axis=-1) < 0.0, -1.0, 1.0)[:, None]
-    d = np.vstack([pts[0] - modeller.pose[:2], d, pts[-1] - modeller.pose[:2]])
+    lines *= np.where((lines * span).sum(-1) < 0.0, -1.0, 1.0)[:, None]
     cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
     norms = np.hypot(d[:-1, 0], d[:-1, 1]) * np.hypot(d[1:, 0], d[1:, 1])
     with np.errstate(divide="ignore", invalid="ignore"):  # a zero-length line: sine 0
