@@ -148,7 +148,7 @@ class LandmarkConditional:
             rows_old = stack_last(2 * source[old], 2 * source[old] + 1).reshape(-1)
             a[rows_new] = self.A[rows_old]
             b[rows_new] = self.b[rows_old]
-            big[np.ix_(rows_new, rows_new)] = cov[np.ix_(rows_old, rows_old)]
+            big[rows_new[:, None], rows_new] = cov[rows_old[:, None], rows_old]
         for i in np.flatnonzero(source < 0):
             sl = slice(2 * i, 2 * i + 2)
             a[sl, :2] = np.eye(2)

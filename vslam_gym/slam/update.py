@@ -1601,7 +1601,7 @@ def update_unknown_lines(
     cov = np.zeros((2 * k, 2 * k))
     idx_new = _block_indices(kept)
     idx_old = _block_indices(source[kept])
-    cov[np.ix_(idx_new, idx_new)] = model.cov[np.ix_(idx_old, idx_old)]
+    cov[idx_new[:, None], idx_new] = model.cov[idx_old[:, None], idx_old]
     for i in np.flatnonzero(source < 0):
         cov[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = full.cov[i]
     u = np.concatenate([np.ones(len(left)), model.u[lo:hi], np.ones(len(right))])
@@ -1635,15 +1635,10 @@ def wrap_model(model: LandmarkModel, object_vertices: tuple[int, int], config: M
     keep = np.arange(start, stop)
     if model.closed or keep.size < 4:  # a closed polygon needs at least 3 vertices
         return Wrap(model, False, float("nan"), keep, np.zeros((0, 0)))
-    l_idx, r_idx = _block_indices([start]), _block_indices([stop - 1])
+    lb, rb = slice(2 * start, 2 * start + 2), slice(2 * stop - 2, 2 * stop)  # v_l, v_r
     mu_d = model.mean[start] - model.mean[stop - 1]
     c = model.cov
-    sigma_d = (
-        c[np.ix_(l_idx, l_idx)]
-        + c[np.ix_(r_idx, r_idx)]
-        - c[np.ix_(l_idx, r_idx)]
-        - c[np.ix_(r_idx, l_idx)]
-    )
+    sigma_d = c[lb, lb] + c[rb, rb] - c[lb, rb] - c[rb, lb]
     distance = float(np.sqrt(mu_d @ np.linalg.solve(ensure_spd(sigma_d, "Sigma_delta"), mu_d)))
     if not distance < config.wrap_mahalanobis:
         return Wrap(model, False, distance, keep, np.zeros((0, 0)))
