@@ -28,6 +28,7 @@ likelihoods meaningless; the line-based ones are not affected.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -374,7 +375,8 @@ class _SegmentModeller:
         self.points = _points(self.z, self.pose)  # (n, 2) world-frame points [m]
         self.n = last - first + 1
         self.point_cov = np.zeros((self.n, 2, 2))
-        self.fast: _FirstOrderLines | None = None
+        self.closed_form = False  # the closed-form first order (use_point_covariances)
+        self._fast: _FirstOrderLines | None = None
         self._fits: tuple[tuple[tuple[int, int], ...], _SpanFits] | None = None
 
     def span_fits(self, spans: list[tuple[int, int]]) -> _SpanFits:
@@ -384,11 +386,18 @@ class _SegmentModeller:
             self._fits = (key, _SpanFits(self.points, spans))
         return self._fits[1]
 
+    @property
+    def fast(self) -> _FirstOrderLines | None:
+        """The closed-form first-order line scores (built on first use), None without."""
+        if self._fast is None and self.closed_form:
+            self._fast = _FirstOrderLines(self, self.point_cov)
+        return self._fast
+
     def use_point_covariances(self, point_cov: np.ndarray) -> None:
         """Store the Cartesian point covariances; enable the closed-form first order."""
         self.point_cov = point_cov
-        if isinstance(self.lin, FirstOrderLinearization):
-            self.fast = _FirstOrderLines(self, point_cov)
+        self._fast = None
+        self.closed_form = isinstance(self.lin, FirstOrderLinearization)
 
     def line_distribution(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
         """Gaussian of ``(p0, p1)`` ``(4,)`` of the line fitted to local beams ``a..b``.
@@ -625,7 +634,7 @@ def vertex_distribution(
             modeller.span_fits(slices),
         )
         offset_var = modeller.config.coarseness**2 * var
-    if modeller.fast is not None:
+    if modeller.closed_form:
         mu, sigma = _first_order_vertices(modeller, slices, offset_var)
         return groups, mu, sigma
     z = np.concatenate([modeller.z, np.zeros(offset_var.size)])
@@ -708,6 +717,16 @@ def _first_order_vertices(
     return mu, sigma
 
 
+@functools.lru_cache(maxsize=1024)
+def _chi2_limit(dof: int, significance: float) -> float:
+    """Chi-square value exceeded with probability ``significance`` at ``dof`` degrees of freedom.
+
+    ``scipy.special.chdtri(dof, 1 - significance)``, kept per argument pair: the hot
+    paths ask for a few small ``dof`` over and over.
+    """
+    return float(chdtri(dof, 1.0 - significance))
+
+
 def coarseness_variances(
     points: np.ndarray,
     point_cov: np.ndarray,
@@ -743,9 +762,10 @@ def coarseness_variances(
     excess = np.where(has_dof, d2.sum(1) - dof * (var * fit.w).sum(1) / fit.cnt, 0.0)
     stat = np.where(has_dof, (d2 / var).sum(1), 0.0)
     # Only residuals that the noise cannot explain (chi-square test) count as model error.
-    significant = stat > chdtri(np.maximum(dof, 1), 1.0 - significance)
+    limits = [_chi2_limit(d, significance) for d in np.maximum(dof, 1).tolist()]
+    significant = stat > np.array(limits)
     per_line = np.where(significant, np.maximum(excess, 0.0) / np.maximum(dof, 1), 0.0)
-    pooled_significant = stat.sum() > chdtri(max(dof.sum(), 1), 1.0 - significance)
+    pooled_significant = stat.sum() > _chi2_limit(max(int(dof.sum()), 1), significance)
     pooled = max(0.0, excess.sum() / max(dof.sum(), 1)) if pooled_significant else 0.0
     # Short lines estimate their own error poorly: never below the pooled estimate.
     return np.maximum(per_line, pooled)

@@ -727,12 +727,9 @@ def _disjoint_groups(lines: list[NewLine]) -> list[tuple[int, int]]:
         left, right = groups[t], groups[t + 1]
         if right[0] >= left[1]:
             continue
-        lo, hi = right[0] - 1, left[1]
-        best, split = None, lo
-        for k in range(lo, hi + 1):
-            cost = np.sum(lines[t].beams > k) + np.sum(lines[t + 1].beams <= k)
-            if best is None or cost < best:
-                best, split = cost, k
+        splits = np.arange(right[0] - 1, left[1] + 1)[:, None]
+        cost = (lines[t].beams > splits).sum(1) + (lines[t + 1].beams <= splits).sum(1)
+        split = int(splits[np.argmin(cost), 0])  # the first of the cheapest
         left[1], right[0] = split, split + 1
     for (a, b), ln in zip(groups, lines, strict=True):
         if b - a < 1:
@@ -824,7 +821,7 @@ def _run_vertices(
             points, point_cov, slices, config.coarseness_significance, modeller.span_fits(slices)
         )
         offset_var = config.coarseness**2 * var
-    if modeller.fast is not None:
+    if modeller.closed_form:
         mu, sigma = _first_order_vertices(modeller, slices, offset_var)
         return mu.reshape(-1), sigma
     z = np.concatenate([modeller.z, np.zeros(offset_var.size)])
