@@ -14,6 +14,7 @@ from vslam_gym.slam.gaussian import (
     Linearization,
     NotPositiveDefiniteError,
     UnscentedLinearization,
+    cho_factor_finite,
     cho_solve_finite,
     ensure_spd,
     first_order_transform,
@@ -456,3 +457,21 @@ def test_cho_solve_finite_matches_scipy_bitwise(columns):
         cho_solve_finite(lower, b), scipy.linalg.cho_solve((lower, True), b)
     )
     assert cho_solve_finite(lower, np.zeros((5, 0))).shape == (5, 0)
+
+
+@pytest.mark.parametrize("columns", [None, 3])
+def test_cho_factor_finite_matches_scipy_bitwise(columns):
+    import scipy.linalg
+
+    rng = np.random.default_rng(11)
+    a = rng.normal(size=(6, 6))
+    s = a @ a.T + np.eye(6)
+    upper, lower = scipy.linalg.cho_factor(s)
+    assert not lower
+    np.testing.assert_array_equal(cho_factor_finite(s), upper)
+    b = rng.normal(size=6 if columns is None else (6, columns))
+    np.testing.assert_array_equal(
+        cho_solve_finite(upper, b, lower=False), scipy.linalg.cho_solve((upper, False), b)
+    )
+    with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
+        cho_factor_finite(-s)

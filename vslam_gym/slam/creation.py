@@ -28,6 +28,7 @@ likelihoods meaningless; the line-based ones are not affected.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -80,7 +81,9 @@ def _stacked(scan: Scan, first: int, last: int, sensor: SensorConfig):
     z = np.empty(2 * n)
     z[0::2] = scan.ranges[first : last + 1]
     z[1::2] = scan.bearings[first : last + 1]
-    return z, np.tile([sensor.sigma_range**2, sensor.sigma_bearing**2], n)
+    var = np.empty(2 * n)
+    var[0::2], var[1::2] = sensor.sigma_range**2, sensor.sigma_bearing**2
+    return z, var
 
 
 def _points(x: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -104,6 +107,16 @@ def _oriented_line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return p0, d * sign[..., None]
 
 
+def _segment_lengths(points: np.ndarray) -> np.ndarray:
+    """``(n - 1,)`` lengths [m] of the segments between consecutive ``(n, 2)`` points.
+
+    ``np.linalg.norm(np.diff(points, axis=0), axis=1)`` by its own arithmetic (the sum of
+    the two squares, then the root) without its overhead.
+    """
+    d = points[1:] - points[:-1]
+    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+
+
 def _intersect(pa, da, pb, db):
     """Intersection of lines ``pa + t da`` and ``pb + s db`` and the sine between them."""
     cross = da[..., 0] * db[..., 1] - da[..., 1] * db[..., 0]
@@ -121,7 +134,7 @@ def _principal_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     principal axis of the scatter matrix) without its input checks, for the hot paths;
     ``psi`` lies in ``(-pi/2, pi/2]``.
     """
-    p0 = points.mean(axis=-2)
+    p0 = points.sum(axis=-2) / points.shape[-2]  # np.mean's arithmetic
     e = points - p0[..., None, :]
     ex, ey = e[..., 0], e[..., 1]
     sxx, syy, sxy = (ex * ex).sum(-1), (ey * ey).sum(-1), (ex * ey).sum(-1)
@@ -362,7 +375,8 @@ class _SegmentModeller:
         self.points = _points(self.z, self.pose)  # (n, 2) world-frame points [m]
         self.n = last - first + 1
         self.point_cov = np.zeros((self.n, 2, 2))
-        self.fast: _FirstOrderLines | None = None
+        self.closed_form = False  # the closed-form first order (use_point_covariances)
+        self._fast: _FirstOrderLines | None = None
         self._fits: tuple[tuple[tuple[int, int], ...], _SpanFits] | None = None
 
     def span_fits(self, spans: list[tuple[int, int]]) -> _SpanFits:
@@ -372,11 +386,18 @@ class _SegmentModeller:
             self._fits = (key, _SpanFits(self.points, spans))
         return self._fits[1]
 
+    @property
+    def fast(self) -> _FirstOrderLines | None:
+        """The closed-form first-order line scores (built on first use), None without."""
+        if self._fast is None and self.closed_form:
+            self._fast = _FirstOrderLines(self, self.point_cov)
+        return self._fast
+
     def use_point_covariances(self, point_cov: np.ndarray) -> None:
         """Store the Cartesian point covariances; enable the closed-form first order."""
         self.point_cov = point_cov
-        if isinstance(self.lin, FirstOrderLinearization):
-            self.fast = _FirstOrderLines(self, point_cov)
+        self._fast = None
+        self.closed_form = isinstance(self.lin, FirstOrderLinearization)
 
     def line_distribution(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
         """Gaussian of ``(p0, p1)`` ``(4,)`` of the line fitted to local beams ``a..b``.
@@ -555,12 +576,14 @@ def _parallel_pairs(modeller: _SegmentModeller, groups: list[tuple[int, int]]) -
     """Sine of the angle between each pair of adjacent lines (end lines included)."""
     pts = modeller.points
     fit = modeller.span_fits(groups)
-    d = stack_last(np.cos(fit.psi), np.sin(fit.psi))
+    d = np.empty((len(groups) + 2, 2))  # end line, the groups' lines, end line
+    d[0], d[-1] = pts[0] - modeller.pose[:2], pts[-1] - modeller.pose[:2]
+    lines = d[1:-1]
+    lines[:, 0], lines[:, 1] = np.cos(fit.psi), np.sin(fit.psi)
     # Oriented from each group's first towards its last point (as _oriented_line).
     ends = np.asarray(groups, dtype=int).reshape(-1, 2)
     span = pts[ends[:, 1]] - pts[ends[:, 0]]
-    d = d * np.where(np.sum(d * span, axis=-1) < 0.0, -1.0, 1.0)[:, None]
-    d = np.vstack([pts[0] - modeller.pose[:2], d, pts[-1] - modeller.pose[:2]])
+    lines *= np.where((lines * span).sum(-1) < 0.0, -1.0, 1.0)[:, None]
     cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
     norms = np.hypot(d[:-1, 0], d[:-1, 1]) * np.hypot(d[1:, 0], d[1:, 1])
     with np.errstate(divide="ignore", invalid="ignore"):  # a zero-length line: sine 0
@@ -611,7 +634,7 @@ def vertex_distribution(
             modeller.span_fits(slices),
         )
         offset_var = modeller.config.coarseness**2 * var
-    if modeller.fast is not None:
+    if modeller.closed_form:
         mu, sigma = _first_order_vertices(modeller, slices, offset_var)
         return groups, mu, sigma
     z = np.concatenate([modeller.z, np.zeros(offset_var.size)])
@@ -646,19 +669,17 @@ def _first_order_vertices(
     j_rho = np.zeros((m + 2, n_in))
     j_psi = np.zeros((m + 2, n_in))
     lines_p = np.empty((m + 2, 2))
-    lines_d = np.empty((m + 2, 2))
-    lines_p[[0, -1]] = pose[:2]
-    end_angles = pose[2] + modeller.z[[1, -1]]
-    lines_d[[0, -1]] = stack_last(np.cos(end_angles), np.sin(end_angles))
+    angles = np.empty(m + 2)  # of the lines' directions [rad]
+    lines_p[0] = lines_p[-1] = pose[:2]
+    angles[0], angles[-1] = pose[2] + modeller.z[1], pose[2] + modeller.z[-1]
     j_psi[0, 1] = 1.0  # the left end line turns with the first beam's bearing
     j_psi[-1, 2 * n - 1] = 1.0  # the right one with the last beam's
 
     # The line geometry per line as in _principal_axis (the vertex means then agree to the
     # last bit with a line-by-line evaluation; downstream ICP is sensitive to that).
     for k, (lo, hi) in enumerate(slices, start=1):
-        p0, psi = _principal_axis(modeller.points[lo : hi + 1])
-        lines_p[k] = p0
-        lines_d[k] = np.cos(psi), np.sin(psi)
+        lines_p[k], angles[k] = _principal_axis(modeller.points[lo : hi + 1])
+    lines_d = stack_last(np.cos(angles), np.sin(angles))  # elementwise: as line by line
     dx, dy = lines_d[1:-1, 0, None], lines_d[1:-1, 1, None]  # normal (-dy, dx)
     gap = np.hypot(fit.sxx - fit.syy, 2.0 * fit.sxy)[:, None]
     de = fit.ex * dx + fit.ey * dy
@@ -672,7 +693,7 @@ def _first_order_vertices(
     rho_phi = (dy * s_ + dx * c) * r / fit.cnt[:, None]
     psi_r = gx * c + gy * s_
     psi_phi = (-gx * s_ + gy * c) * r
-    rows = np.broadcast_to(np.arange(1, m + 1)[:, None], fit.idx.shape)[fit.mask]
+    rows = np.repeat(np.arange(1, m + 1), fit.lengths)  # the mask's row of each entry
     cols = 2 * fit.idx[fit.mask]
     j_rho[rows, cols], j_rho[rows, cols + 1] = rho_r[fit.mask], rho_phi[fit.mask]
     j_psi[rows, cols], j_psi[rows, cols + 1] = psi_r[fit.mask], psi_phi[fit.mask]
@@ -682,17 +703,28 @@ def _first_order_vertices(
     # Vertex i joins lines i (A) and i + 1 (B): solve [n_A; n_B] v = [n_A . p_A; n_B . p_B].
     pa, da, pb, db = lines_p[:-1], lines_d[:-1], lines_p[1:], lines_d[1:]
     normals = stack_last(-lines_d[:, 1], lines_d[:, 0])
-    offsets = np.array([nrm @ p for nrm, p in zip(normals, lines_p, strict=True)])
-    mat = np.stack([normals[:-1], normals[1:]], axis=-2)  # (m + 1, 2, 2)
+    offsets = np.vecdot(normals, lines_p)  # row by row, as nrm @ p (the same dot kernel)
+    mat = np.empty((m + 1, 2, 2))
+    mat[:, 0], mat[:, 1] = normals[:-1], normals[1:]
     mu = np.linalg.solve(mat, stack_last(offsets[:-1], offsets[1:])[..., None])[..., 0]
     inv = np.linalg.inv(mat)
-    row_a = j_rho[:-1] + np.sum(da * (mu - pa), axis=1)[:, None] * j_psi[:-1]
-    row_b = j_rho[1:] + np.sum(db * (mu - pb), axis=1)[:, None] * j_psi[1:]
+    row_a = j_rho[:-1] + (da * (mu - pa)).sum(1)[:, None] * j_psi[:-1]
+    row_b = j_rho[1:] + (db * (mu - pb)).sum(1)[:, None] * j_psi[1:]
     jac = inv[:, :, 0, None] * row_a[:, None, :] + inv[:, :, 1, None] * row_b[:, None, :]
     jac = jac.reshape(2 * (m + 1), n_in)
     var_in = np.concatenate([modeller.var, offset_var])
     sigma = symmetrize((jac * var_in) @ jac.T)
     return mu, sigma
+
+
+@functools.lru_cache(maxsize=1024)
+def _chi2_limit(dof: int, significance: float) -> float:
+    """Chi-square value exceeded with probability ``significance`` at ``dof`` degrees of freedom.
+
+    ``scipy.special.chdtri(dof, 1 - significance)``, kept per argument pair: the hot
+    paths ask for a few small ``dof`` over and over.
+    """
+    return float(chdtri(dof, 1.0 - significance))
 
 
 def coarseness_variances(
@@ -730,9 +762,10 @@ def coarseness_variances(
     excess = np.where(has_dof, d2.sum(1) - dof * (var * fit.w).sum(1) / fit.cnt, 0.0)
     stat = np.where(has_dof, (d2 / var).sum(1), 0.0)
     # Only residuals that the noise cannot explain (chi-square test) count as model error.
-    significant = stat > chdtri(np.maximum(dof, 1), 1.0 - significance)
+    limits = [_chi2_limit(d, significance) for d in np.maximum(dof, 1).tolist()]
+    significant = stat > np.array(limits)
     per_line = np.where(significant, np.maximum(excess, 0.0) / np.maximum(dof, 1), 0.0)
-    pooled_significant = stat.sum() > chdtri(max(dof.sum(), 1), 1.0 - significance)
+    pooled_significant = stat.sum() > _chi2_limit(max(int(dof.sum()), 1), significance)
     pooled = max(0.0, excess.sum() / max(dof.sum(), 1)) if pooled_significant else 0.0
     # Short lines estimate their own error poorly: never below the pooled estimate.
     return np.maximum(per_line, pooled)
@@ -809,7 +842,7 @@ def unknown_probabilities(
     """
     lo, hi = config.unknown_bounds(sensor)
     gaps = np.array([b - a for a, b in groups], dtype=float)
-    d = np.linalg.norm(np.diff(mu_v, axis=0), axis=1) / np.maximum(gaps, 1.0)
+    d = _segment_lengths(mu_v) / np.maximum(gaps, 1.0)
     return np.clip((d - lo) / (hi - lo), 0.0, 1.0)
 
 

@@ -77,7 +77,9 @@ def _as_square(S: np.ndarray, name: str) -> np.ndarray:
 def symmetrize(S: np.ndarray) -> np.ndarray:
     """Return ``(S + S^T) / 2`` over the last two axes (batched over leading dims)."""
     S = _as_square(S, "matrix")
-    return 0.5 * (S + S.swapaxes(-1, -2))
+    out = S + S.swapaxes(-1, -2)
+    out *= 0.5
+    return out
 
 
 def inflated_information(
@@ -132,23 +134,48 @@ def cholesky(S: np.ndarray, name: str = "covariance") -> np.ndarray:
 
 _POTRS = scipy.linalg.get_lapack_funcs("potrs", (np.empty((1, 1)),))
 """LAPACK's float64 Cholesky solve, the routine behind :func:`scipy.linalg.cho_solve`."""
+_POTRF = scipy.linalg.get_lapack_funcs("potrf", (np.empty((1, 1)),))
+"""LAPACK's float64 Cholesky factorisation, the routine behind :func:`scipy.linalg.cho_factor`."""
 
 
-def cho_solve_finite(lower: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``scipy.linalg.cho_solve((lower, True), b)`` without its input checks (hot paths).
+def cho_solve_finite(factor: np.ndarray, b: np.ndarray, *, lower: bool = True) -> np.ndarray:
+    """``scipy.linalg.cho_solve((factor, lower), b)`` without its input checks (hot paths).
 
     The same LAPACK routine on the same arrays, so the same result to the last bit,
     without scipy's finiteness checks and batching wrapper, whose overhead dominates on
     the filter's small matrices. The caller guarantees what those checks would test:
-    ``lower`` is a lower Cholesky factor ``(n, n)`` and ``b`` ``(n,)`` or ``(n, m)``, both
-    finite float64 (e.g. the factor of a checked finite matrix and an identity).
+    ``factor`` is a lower (``lower``) or upper Cholesky factor ``(n, n)`` and ``b``
+    ``(n,)`` or ``(n, m)``, both finite float64 (e.g. the factor of a checked finite
+    matrix and an identity).
     """
     if b.size == 0:
-        return scipy.linalg.cho_solve((lower, True), b)
-    x, info = _POTRS(lower, b, lower=True)
+        return scipy.linalg.cho_solve((factor, lower), b)
+    x, info = _POTRS(factor, b, lower=lower)
     if info != 0:
         raise ValueError(f"illegal value in {-info}th argument of internal potrs")
     return x
+
+
+def cho_factor_finite(S: np.ndarray) -> np.ndarray:
+    """``scipy.linalg.cho_factor(S)[0]`` without its input checks (hot paths).
+
+    The upper Cholesky factor by the same LAPACK call (the strictly lower triangle holds
+    whatever ``S`` had), for :func:`cho_solve_finite` with ``lower=False``. The caller
+    guarantees that ``S`` is a finite float64 ``(n, n)`` matrix with ``n >= 1``.
+
+    Raises:
+        numpy.linalg.LinAlgError: ``S`` is not positive definite (scipy's error).
+    """
+    c, info = _POTRF(S, lower=False, clean=False)
+    if info > 0:
+        raise np.linalg.LinAlgError(
+            f"{info}-th leading minor of the array is not positive definite"
+        )
+    if info < 0:
+        raise ValueError(
+            f'LAPACK reported an illegal value in {-info}-th argument on entry to "POTRF".'
+        )
+    return c
 
 
 def is_spd(S: np.ndarray) -> bool:
@@ -589,9 +616,11 @@ def _index_array(indices: Sequence[int] | np.ndarray, dim: int, where: str) -> n
         return np.zeros(0, dtype=int)
     if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
         raise ValueError(f"{where}: indices must be a 1-D sequence of integers, got {indices!r}")
-    if np.any(idx < -dim) or np.any(idx >= dim):
+    low, high = idx.min(), idx.max()
+    if low < -dim or high >= dim:
         raise ValueError(f"{where}: index out of range for dimension {dim}: {idx.tolist()}")
-    idx = np.where(idx < 0, idx + dim, idx)
+    if low < 0:
+        idx = np.where(idx < 0, idx + dim, idx)
     if np.unique(idx).size != idx.size:
         raise ValueError(f"{where}: repeated indices {idx.tolist()}")
     return idx
@@ -701,7 +730,9 @@ class Canonical:
         if m.size == 0:
             return Canonical(K_kk, h_k)
         K_mm = self.K[m[:, None], m]
-        rhs = np.column_stack([self.K[m[:, None], k], self.h[m]])
+        rhs = np.empty((m.size, k.size + 1))  # [K_mk, h_m]
+        rhs[:, :-1] = self.K[m[:, None], k]
+        rhs[:, -1] = self.h[m]
         solution = _solve_psd(K_mm, rhs, "Canonical.marginalize block K_mm")
         K_km = self.K[k[:, None], m]
         correction = K_km @ solution

@@ -117,9 +117,12 @@ class LandmarkConditional:
     def covariance(self) -> np.ndarray:
         """``Sigma_v = K^-1`` ``(2k, 2k)`` (computed once; treat it as read-only)."""
         if self._cov is None:
-            self._cov = symmetrize(
-                scipy.linalg.cho_solve((np.linalg.cholesky(self.K), True), np.eye(self.K.shape[0]))
-            )
+            lower = np.linalg.cholesky(self.K)
+            eye = np.eye(self.K.shape[0])
+            if np.isfinite(lower).all():
+                self._cov = symmetrize(cho_solve_finite(lower, eye))
+            else:  # scipy's finiteness check raises its error
+                self._cov = symmetrize(scipy.linalg.cho_solve((lower, True), eye))
         return self._cov
 
     def select(
@@ -145,7 +148,7 @@ class LandmarkConditional:
             rows_old = stack_last(2 * source[old], 2 * source[old] + 1).reshape(-1)
             a[rows_new] = self.A[rows_old]
             b[rows_new] = self.b[rows_old]
-            big[np.ix_(rows_new, rows_new)] = cov[np.ix_(rows_old, rows_old)]
+            big[rows_new[:, None], rows_new] = cov[rows_old[:, None], rows_old]
         for i in np.flatnonzero(source < 0):
             sl = slice(2 * i, 2 * i + 2)
             a[sl, :2] = np.eye(2)
@@ -170,12 +173,29 @@ class LandmarkConditional:
         return LandmarkConditional(A=proj @ self.A[rows], b=proj @ self.b[rows], K=k_new)
 
 
-def _linear_factor(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Canonical form over ``(y, v)`` of ``v = a y + b + n``, ``n ~ C(k, 0)``."""
+def _add_linear_factor(
+    kk: np.ndarray,
+    hh: np.ndarray,
+    y: slice,
+    v: slice,
+    a: np.ndarray,
+    b: np.ndarray,
+    k: np.ndarray,
+) -> None:
+    """Add the canonical form of ``v = a y + b + n``, ``n ~ C(k, 0)``, to ``(kk, hh)``.
+
+    ``y`` and ``v`` are the slices of the two variables in ``kk`` ``(dim, dim)`` and
+    ``hh`` ``(dim,)``, added to in place block by block: ``[[a^T k a, -(k a)^T],
+    [-k a, k]]`` and ``[-(k a)^T b, k b]``.
+    """
     ka = k @ a
-    big = np.block([[a.T @ ka, -ka.T], [-ka, k]])
-    h = np.concatenate([-ka.T @ b, k @ b])
-    return big, h
+    neg_t = -ka.T
+    kk[y, y] += a.T @ ka
+    kk[y, v] += neg_t
+    kk[v, y] += -ka
+    kk[v, v] += k
+    hh[y] += neg_t @ b
+    hh[v] += k @ b
 
 
 def observation_factor(
@@ -190,11 +210,9 @@ def observation_factor(
     nv, d = b2.size, a2.shape[1]
     dim = POSE_DIM + d + nv
     kk, hh = np.zeros((dim, dim)), np.zeros(dim)
-    rv = np.r_[POSE_DIM : POSE_DIM + d, POSE_DIM + d : dim]
-    xv = np.r_[0:POSE_DIM, POSE_DIM + d : dim]
-    for idx, (kf, hf) in ((rv, _linear_factor(a2, b2, k2)), (xv, _linear_factor(a3, b3, k3))):
-        kk[np.ix_(idx, idx)] += kf
-        hh[idx] += hf
+    x, r, v = slice(0, POSE_DIM), slice(POSE_DIM, POSE_DIM + d), slice(POSE_DIM + d, dim)
+    _add_linear_factor(kk, hh, r, v, a2, b2, k2)
+    _add_linear_factor(kk, hh, x, v, a3, b3, k3)
     return Canonical(kk, hh)
 
 
@@ -257,16 +275,28 @@ def augment_landmark(
     return mu_new, sigma_new, conditional
 
 
+def _times_leading(joint: Canonical, prior: Canonical) -> Canonical:
+    """``joint`` times ``prior`` over its leading ``prior.dim`` variables.
+
+    ``joint + prior.extend(joint.dim - prior.dim)`` without the zero-padded copy: the
+    sum of two symmetric information matrices is symmetric as it stands.
+    """
+    lead = slice(0, prior.dim)
+    K, h = joint.K.copy(), joint.h.copy()
+    K[lead, lead] += prior.K
+    h[lead] += prior.h
+    return Canonical(K, h)
+
+
 def _conditional_v_given_r(local: Canonical, d: int) -> LandmarkConditional:
     """``p(v | r)`` from a canonical form over ``(x, r (d), v)`` (``x`` marginalised)."""
     dim = local.dim
     keep = np.arange(POSE_DIM, dim)
     m = local.marginalize(keep)
-    r, v = np.arange(d), np.arange(d, m.dim)
-    k8 = m.K[np.ix_(v, v)]
+    k8 = m.K[d:, d:]
     chol = np.linalg.cholesky(k8)  # of a finite Canonical's block: finite
-    a8 = -cho_solve_finite(chol, m.K[np.ix_(v, r)])
-    b8 = cho_solve_finite(chol, m.h[v])
+    a8 = -cho_solve_finite(chol, m.K[d:, :d])
+    b8 = cho_solve_finite(chol, m.h[d:])
     return LandmarkConditional(A=a8, b=b8, K=symmetrize(k8))
 
 
@@ -279,7 +309,7 @@ def _woodbury(
     ``mu' = mu + Sigma'_:s (eta - lam mu_s)``; ``lam`` may be singular.
     """
     s_cols = sigma[:, idx]
-    s_ss = sigma[np.ix_(idx, idx)]
+    s_ss = s_cols[idx]
     gain = np.linalg.solve((np.eye(idx.size) + s_ss @ lam).T, (s_cols @ lam).T).T
     sigma_new = symmetrize(sigma - gain @ s_cols.T)
     mu_new = mu + sigma_new[:, idx] @ (eta - lam @ mu[idx])
@@ -335,19 +365,17 @@ def state_space_update(
         prior_h = np.zeros(POSE_DIM + d)
         prior_k[:3, :3] = np.linalg.inv(sigma[:3, :3])
         prior_h[:3] = prior_k[:3, :3] @ mu[:3]
+        prior = Canonical(prior_k, prior_h)
     else:
-        s = np.r_[pose, ref : ref + d]
-        prior = Canonical.from_moments(mu[s], sigma[np.ix_(s, s)])
-        prior_k, prior_h = prior.K, prior.h
-    local = phi23 + Canonical(prior_k, prior_h).extend(b2.size)
-    conditional = _conditional_v_given_r(local, d)
+        local_idx = np.array([*range(POSE_DIM), *range(ref, ref + d)])
+        prior = Canonical.from_moments(mu[local_idx], sigma[local_idx[:, None], local_idx])
+    conditional = _conditional_v_given_r(_times_leading(phi23, prior), d)
 
     lam, eta = factor.K, factor.h
     if ref is not None:
-        local_idx = np.r_[pose, ref : ref + d]
         mu_new, sigma_new = _woodbury(mu, sigma, local_idx, lam, eta)
         cholesky(
-            sigma_new[np.ix_(local_idx, local_idx)], "state covariance after the landmark update"
+            sigma_new[local_idx[:, None], local_idx], "state covariance after the landmark update"
         )
     else:
         lam_rr = lam[3:, 3:]

@@ -75,6 +75,7 @@ from vslam_gym.slam.creation import (
     _intersect,
     _parallel_pairs,
     _points,
+    _segment_lengths,
     _SegmentModeller,
     _vertex_function,
     coarseness_variances,
@@ -90,10 +91,13 @@ from vslam_gym.slam.gaussian import (
     Canonical,
     Linearization,
     NotPositiveDefiniteError,
+    cho_factor_finite,
+    cho_solve_finite,
     ensure_spd,
     make_linearization,
     symmetrize,
 )
+from vslam_gym.slam.geometry import stack_last
 from vslam_gym.slam.landmark import LandmarkModel, conditional_on_pose
 from vslam_gym.slam.likelihood import exponential_rate
 from vslam_gym.slam.scan import Scan
@@ -515,13 +519,14 @@ def _refine_boundaries(
         A new ``(n,)`` array of line indices per beam.
     """
     line = line_of_beam.copy()
-    points = _points(
-        np.stack([scan.ranges, scan.bearings], axis=1)[first : first + line.size].reshape(-1),
-        pose,
-    )
+    beams = slice(first, first + line.size)
+    points = _points(stack_last(scan.ranges[beams], scan.bearings[beams]).reshape(-1), pose)
+    counts = np.bincount(line[line >= 0])  # beams per line, kept up to date
     for j in range(int(line.max(initial=-1))):
+        if min(counts[j], counts[j + 1]) < config.min_beams_per_line:
+            continue
         left, right = np.flatnonzero(line == j), np.flatnonzero(line == j + 1)
-        if min(left.size, right.size) < config.min_beams_per_line or right[0] != left[-1] + 1:
+        if right[0] != left[-1] + 1:
             continue
         a, b = int(left[0]), int(right[-1])
         if np.any(line[a : b + 1] < j) or np.any(line[a : b + 1] > j + 1):
@@ -543,6 +548,7 @@ def _refine_boundaries(
         )[0][1]
         line[a : a + split + 1] = j
         line[a + split + 1 : b + 1] = j + 1
+        counts = np.bincount(line[line >= 0], minlength=counts.size)
     return line
 
 
@@ -651,11 +657,11 @@ def observed_lines(
     matched: dict[int, tuple[bool, bool]] = {}
     none = np.zeros(0, dtype=int)
     for i in range(m):
-        beams = np.flatnonzero(line_of_beam == i) + first
         if not observed[i]:
             zeta.append((0,))
             lines.append(NewLine(i, 0, False, none, (-1, -1)))
             continue
+        beams = np.flatnonzero(line_of_beam == i) + first
         a, b = int(beams[0]), int(beams[-1])
         if model.u[i] <= config.unknown_threshold:
             zeta.append((1,))
@@ -721,12 +727,9 @@ def _disjoint_groups(lines: list[NewLine]) -> list[tuple[int, int]]:
         left, right = groups[t], groups[t + 1]
         if right[0] >= left[1]:
             continue
-        lo, hi = right[0] - 1, left[1]
-        best, split = None, lo
-        for k in range(lo, hi + 1):
-            cost = np.sum(lines[t].beams > k) + np.sum(lines[t + 1].beams <= k)
-            if best is None or cost < best:
-                best, split = cost, k
+        splits = np.arange(right[0] - 1, left[1] + 1)[:, None]
+        cost = (lines[t].beams > splits).sum(1) + (lines[t + 1].beams <= splits).sum(1)
+        split = int(splits[np.argmin(cost), 0])  # the first of the cheapest
         left[1], right[0] = split, split + 1
     for (a, b), ln in zip(groups, lines, strict=True):
         if b - a < 1:
@@ -818,7 +821,7 @@ def _run_vertices(
             points, point_cov, slices, config.coarseness_significance, modeller.span_fits(slices)
         )
         offset_var = config.coarseness**2 * var
-    if modeller.fast is not None:
+    if modeller.closed_form:
         mu, sigma = _first_order_vertices(modeller, slices, offset_var)
         return mu.reshape(-1), sigma
     z = np.concatenate([modeller.z, np.zeros(offset_var.size)])
@@ -908,7 +911,7 @@ def _fit_run(
     idx = _block_indices(np.flatnonzero(keep))
     informed = [v for v, k in zip(vertices, keep, strict=True) if k]
     run = Run((t0, t1), s, e, tuple(informed), tuple(dropped))
-    return informed, mu_all[idx], symmetrize(sigma_all[np.ix_(idx, idx)]), dropped, u_lines, run
+    return informed, mu_all[idx], symmetrize(sigma_all[idx[:, None], idx]), dropped, u_lines, run
 
 
 def _end_correction(config: ModelConfig) -> bool:
@@ -1081,13 +1084,14 @@ def _end_quantization(
         ds = _spacing_beyond(v[end], along, scan, beam, step, pose, sensor)
         if ds is None:
             unbounded.append(end)
-        idx = _block_indices([end % v.shape[0]])
+        i = end % v.shape[0]
+        block = slice(2 * i, 2 * i + 2)  # the vertex's coordinates
         if ds is not None and not occluded[side]:
-            mu[idx] += 0.5 * ds * along
-            sigma[np.ix_(idx, idx)] += (ds**2 / 12.0) * np.outer(along, along)
+            mu[block] += 0.5 * ds * along
+            sigma[block, block] += (ds**2 / 12.0) * np.outer(along, along)
         elif across[side] is not None:
             reach = max(float(along @ (across[side] - v[end])), 0.0)
-            sigma[np.ix_(idx, idx)] += (reach**2 / 3.0) * np.outer(along, along)
+            sigma[block, block] += (reach**2 / 3.0) * np.outer(along, along)
     return mu, sigma, unbounded
 
 
@@ -1142,7 +1146,7 @@ def observed_parameters(
         if informed:
             canon = Canonical.from_moments(mu, sigma)
             idx = _block_indices(informed)
-            K[np.ix_(idx, idx)] = canon.K
+            K[idx[:, None], idx] = canon.K
             h[idx] = canon.h
     return ObservedParameters(K, h, u_obs, tuple(runs))
 
@@ -1242,8 +1246,12 @@ def observation_conditional(
     if G.shape[0] == 0:
         return np.zeros((G.shape[1], 3)), np.zeros(G.shape[1])
     K_sel = symmetrize(G @ K_obs @ G.T)
-    factor = scipy.linalg.cho_factor(ensure_spd(K_sel, "observed information G K_obs G^T"))
-    mu_sel = scipy.linalg.cho_solve(factor, G @ h_obs)
+    upper = cho_factor_finite(ensure_spd(K_sel, "observed information G K_obs G^T"))  # finite
+    h_sel = G @ h_obs
+    if np.isfinite(h_sel).all():
+        mu_sel = cho_solve_finite(upper, h_sel, lower=False)
+    else:  # scipy's finiteness check raises its error
+        mu_sel = scipy.linalg.cho_solve((upper, False), h_sel)
     a_sel, b_sel = conditional_on_pose(mu_sel.reshape(-1, 2), pose)
     return G.T @ a_sel, G.T @ b_sel
 
@@ -1461,8 +1469,7 @@ def _chain_crossing(left: _Chain, right: _Chain) -> tuple[int, int, float, float
     nl, nr = len(left), len(right)
     if nl < 2 or nr < 2:
         return None
-    seg_l = np.linalg.norm(np.diff(left.mean, axis=0), axis=1)
-    seg_r = np.linalg.norm(np.diff(right.mean, axis=0), axis=1)
+    seg_l, seg_r = _segment_lengths(left.mean), _segment_lengths(right.mean)
     best = None
     # All segment pairs at once; the (few) crossings are then ranked in (i, j) order.
     ok, s_all, t_all = _segments_params(
@@ -1576,8 +1583,11 @@ def update_unknown_lines(
     # A vertex met twice (a prior unknown vertex that the observation also reached) is
     # kept once, in the core if there; other occurrences become independent copies.
     source = full.source.copy()
-    order = np.r_[np.arange(len(left), len(left) + len(core)), np.arange(len(left))]
-    order = np.r_[order, np.arange(len(left) + len(core), k)]
+    order = [
+        *range(len(left), len(left) + len(core)),
+        *range(len(left)),
+        *range(len(left) + len(core), k),
+    ]
     seen: set[int] = set()
     for i in order:
         if source[i] >= 0:
@@ -1588,7 +1598,7 @@ def update_unknown_lines(
     cov = np.zeros((2 * k, 2 * k))
     idx_new = _block_indices(kept)
     idx_old = _block_indices(source[kept])
-    cov[np.ix_(idx_new, idx_new)] = model.cov[np.ix_(idx_old, idx_old)]
+    cov[idx_new[:, None], idx_new] = model.cov[idx_old[:, None], idx_old]
     for i in np.flatnonzero(source < 0):
         cov[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = full.cov[i]
     u = np.concatenate([np.ones(len(left)), model.u[lo:hi], np.ones(len(right))])
@@ -1622,15 +1632,10 @@ def wrap_model(model: LandmarkModel, object_vertices: tuple[int, int], config: M
     keep = np.arange(start, stop)
     if model.closed or keep.size < 4:  # a closed polygon needs at least 3 vertices
         return Wrap(model, False, float("nan"), keep, np.zeros((0, 0)))
-    l_idx, r_idx = _block_indices([start]), _block_indices([stop - 1])
+    lb, rb = slice(2 * start, 2 * start + 2), slice(2 * stop - 2, 2 * stop)  # v_l, v_r
     mu_d = model.mean[start] - model.mean[stop - 1]
     c = model.cov
-    sigma_d = (
-        c[np.ix_(l_idx, l_idx)]
-        + c[np.ix_(r_idx, r_idx)]
-        - c[np.ix_(l_idx, r_idx)]
-        - c[np.ix_(r_idx, l_idx)]
-    )
+    sigma_d = c[lb, lb] + c[rb, rb] - c[lb, rb] - c[rb, lb]
     distance = float(np.sqrt(mu_d @ np.linalg.solve(ensure_spd(sigma_d, "Sigma_delta"), mu_d)))
     if not distance < config.wrap_mahalanobis:
         return Wrap(model, False, distance, keep, np.zeros((0, 0)))
