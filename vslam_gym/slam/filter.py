@@ -693,7 +693,10 @@ class VertexSLAM:
         self._prealigned = False
         self._measured = False
         self._measured_at: np.ndarray | None = None  # pose after the last measurement update
-        self._views: tuple[LandmarkView, ...] | None = None  # the map's views, until it changes
+        # The landmark views of the belief and the state mean they were made from: every
+        # change of the map replaces the mean array (a motion update too, which re-keys them).
+        self._views: tuple[LandmarkView, ...] = ()
+        self._views_of: np.ndarray | None = None
         return self.belief
 
     @property
@@ -704,8 +707,9 @@ class VertexSLAM:
         after a step that may have changed the map: the beliefs of the steps between share
         one ``landmarks`` tuple (the same objects), so treat its arrays as read-only.
         """
-        if self._views is None:
+        if self._views_of is not self._mu:
             self._views = tuple(self._landmark_view(lm) for lm in self._landmarks)
+            self._views_of = self._mu
         pose = self._mu[:3].copy()
         return Belief(
             step=self._step,
@@ -766,7 +770,7 @@ class VertexSLAM:
         parts = dict.fromkeys(STEP_PARTS, 0.0)
         self._step_ms_parts = parts
         # A motion update changes the pose rows only: the landmark views stay valid then.
-        views, self._views = self._views, None
+        views_valid = self._views_of is self._mu
         start = time.perf_counter()
         if mode != "none":
             points = scan_points(scan.ranges, scan.bearings, scan.max_range)
@@ -810,8 +814,8 @@ class VertexSLAM:
             start = time.perf_counter()
             self._local_map.add(points, self._mu[:3])
             parts["motion"] += (time.perf_counter() - start) * 1e3
-        elif not self._measured:
-            self._views = views
+        elif not self._measured and views_valid:
+            self._views_of = self._mu
 
     def _motion_filtered(self) -> bool:
         """Whether a motion filter (``measurement_min_travel``/``_turn``) is on."""
