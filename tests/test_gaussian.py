@@ -305,6 +305,25 @@ def test_canonical_marginalize_equals_moment_subblock(gaussian5):
         c.marginalize([1, 1])
 
 
+def test_canonical_index_validation(gaussian5):
+    mu, Sigma = gaussian5
+    c = Canonical.from_moments(mu, Sigma)
+    # negative indices wrap, in marginalize and condition alike
+    np.testing.assert_array_equal(c.marginalize([-1, 0]).K, c.marginalize([4, 0]).K)
+    np.testing.assert_array_equal(c.condition([-2], [0.5]).h, c.condition([3], [0.5]).h)
+    for bad, match in (([1, -4], "repeated"), ([5], "out of range"), ([-6], "out of range")):
+        with pytest.raises(ValueError, match=match):
+            c.marginalize(bad)
+        with pytest.raises(ValueError, match=match):
+            c.condition(bad, np.zeros(len(bad)))
+    with pytest.raises(ValueError, match="integers"):
+        c.marginalize([0.5])
+    with pytest.raises(ValueError, match="Canonical.K contains non-finite"):
+        Canonical(np.full((2, 2), np.nan), np.zeros(2))
+    with pytest.raises(ValueError, match="Canonical.h contains non-finite"):
+        Canonical(np.eye(2), np.array([0.0, np.inf]))
+
+
 def test_canonical_marginalize_uninformative_variables(gaussian5):
     mu, Sigma = gaussian5
     c = Canonical.from_moments(mu, Sigma).extend(2)

@@ -76,7 +76,11 @@ def _as_square(S: np.ndarray, name: str) -> np.ndarray:
 
 def symmetrize(S: np.ndarray) -> np.ndarray:
     """Return ``(S + S^T) / 2`` over the last two axes (batched over leading dims)."""
-    S = _as_square(S, "matrix")
+    return _symmetrized(_as_square(S, "matrix"))
+
+
+def _symmetrized(S: np.ndarray) -> np.ndarray:
+    """:func:`symmetrize` of a float array already checked to be ``(..., n, n)``."""
     out = S + S.swapaxes(-1, -2)
     out *= 0.5
     return out
@@ -124,7 +128,7 @@ def cholesky(S: np.ndarray, name: str = "covariance") -> np.ndarray:
     and the smallest eigenvalue) when ``S`` is not positive definite, and
     :class:`ValueError` when it is not square or not finite.
     """
-    S = symmetrize(_as_square(S, name))
+    S = _symmetrized(_as_square(S, name))
     _check_finite(S, name)
     try:
         return np.linalg.cholesky(S)
@@ -610,10 +614,17 @@ def make_linearization(config: ModelConfig) -> Linearization:
 # ---------------------------------------------------------------------------------------
 
 
-def _index_array(indices: Sequence[int] | np.ndarray, dim: int, where: str) -> np.ndarray:
+def _index_mask(
+    indices: Sequence[int] | np.ndarray, dim: int, where: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validated ``indices`` into ``0..dim-1`` (negatives wrapped) and their ``(dim,)`` mask.
+
+    Raises ``ValueError`` for indices that are not 1-D integers, out of range or repeated.
+    """
     idx = np.asarray(indices)
+    chosen = np.zeros(dim, dtype=bool)
     if idx.size == 0:
-        return np.zeros(0, dtype=int)
+        return np.zeros(0, dtype=int), chosen
     if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
         raise ValueError(f"{where}: indices must be a 1-D sequence of integers, got {indices!r}")
     low, high = idx.min(), idx.max()
@@ -621,19 +632,10 @@ def _index_array(indices: Sequence[int] | np.ndarray, dim: int, where: str) -> n
         raise ValueError(f"{where}: index out of range for dimension {dim}: {idx.tolist()}")
     if low < 0:
         idx = np.where(idx < 0, idx + dim, idx)
-    if np.unique(idx).size != idx.size:
+    chosen[idx] = True
+    if np.count_nonzero(chosen) != idx.size:  # a repeated index marks one entry twice
         raise ValueError(f"{where}: repeated indices {idx.tolist()}")
-    return idx
-
-
-def _complement(idx: np.ndarray, dim: int) -> np.ndarray:
-    """The indices of ``0..dim-1`` not in ``idx`` (valid indices), ascending.
-
-    ``np.setdiff1d(np.arange(dim), idx)`` by a mask, without its sorting.
-    """
-    mask = np.ones(dim, dtype=bool)
-    mask[idx] = False
-    return np.flatnonzero(mask)
+    return idx, chosen
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:
@@ -658,16 +660,17 @@ class Canonical:
     h: np.ndarray
 
     def __post_init__(self) -> None:
-        K = np.array(self.K, dtype=float)
+        K = np.asarray(self.K, dtype=float)  # copied by the symmetrisation below
         h = np.array(self.h, dtype=float)
         if K.ndim != 2 or K.shape[0] != K.shape[1] or h.shape != (K.shape[0],):
             raise ValueError(
                 f"Canonical needs K of shape (n, n) and h of shape (n,), got K {K.shape}, "
                 f"h {h.shape}"
             )
-        _check_finite(K, "Canonical.K")
-        _check_finite(h, "Canonical.h")
-        object.__setattr__(self, "K", _readonly(symmetrize(K)))
+        if not (np.isfinite(K).all() and np.isfinite(h).all()):
+            _check_finite(K, "Canonical.K")
+            _check_finite(h, "Canonical.h")
+        object.__setattr__(self, "K", _readonly(_symmetrized(K)))
         object.__setattr__(self, "h", _readonly(h))
 
     @classmethod
@@ -723,8 +726,11 @@ class Canonical:
         information); otherwise the integral diverges and NotPositiveDefiniteError is
         raised.
         """
-        k = _index_array(keep, self.dim, "Canonical.marginalize")
-        m = _complement(k, self.dim)
+        k, kept = _index_mask(keep, self.dim, "Canonical.marginalize")
+        return self._marginal(k, np.flatnonzero(~kept))
+
+    def _marginal(self, k: np.ndarray, m: np.ndarray) -> Canonical:
+        """:meth:`marginalize` onto the valid indices ``k``; ``m``: the others, ascending."""
         K_kk = self.K[k[:, None], k]  # np.ix_(k, k) without its overhead
         h_k = self.h[k]
         if m.size == 0:
@@ -743,14 +749,14 @@ class Canonical:
 
         ``K' = K_rr``, ``h' = h_r - K_ri values``.
         """
-        i = _index_array(idx, self.dim, "Canonical.condition")
+        i, given = _index_mask(idx, self.dim, "Canonical.condition")
         values = np.asarray(values, dtype=float).reshape(-1)
         if values.shape != i.shape:
             raise ValueError(
                 f"Canonical.condition: {i.size} indices but {values.size} values given"
             )
         _check_finite(values, "Canonical.condition values")
-        r = _complement(i, self.dim)
+        r = np.flatnonzero(~given)
         return Canonical(self.K[r[:, None], r], self.h[r] - self.K[r[:, None], i] @ values)
 
     def transform(self, F: np.ndarray, offset: np.ndarray | None = None) -> Canonical:

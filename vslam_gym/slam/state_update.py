@@ -290,9 +290,7 @@ def _times_leading(joint: Canonical, prior: Canonical) -> Canonical:
 
 def _conditional_v_given_r(local: Canonical, d: int) -> LandmarkConditional:
     """``p(v | r)`` from a canonical form over ``(x, r (d), v)`` (``x`` marginalised)."""
-    dim = local.dim
-    keep = np.arange(POSE_DIM, dim)
-    m = local.marginalize(keep)
+    m = local._marginal(np.arange(POSE_DIM, local.dim), np.arange(POSE_DIM))
     k8 = m.K[d:, d:]
     chol = np.linalg.cholesky(k8)  # of a finite Canonical's block: finite
     a8 = -cho_solve_finite(chol, m.K[d:, :d])
@@ -358,7 +356,7 @@ def state_space_update(
     d = a2.shape[1]
     phi23 = observation_factor(a2, b2, k2, a3, b3, k3)
     xr = np.arange(POSE_DIM + d)
-    factor = phi23.marginalize(xr)  # v out: a factor on (x, r)
+    factor = phi23._marginal(xr, np.arange(POSE_DIM + d, phi23.dim))  # v out: on (x, r)
     pose = np.arange(POSE_DIM)
     if ref is None:
         prior_k = np.zeros((POSE_DIM + d,) * 2)
