@@ -243,3 +243,28 @@ def test_short_line_at_grazing_angle_keeps_its_vertices():
     assert [f.n_object_lines for f in fits] == [3, 3]
     a, b = (f.model.mean[f.object_vertices[0] : f.object_vertices[1]] for f in fits)
     np.testing.assert_allclose(a, b, atol=0.05)
+
+
+@pytest.mark.filterwarnings("error")
+def test_parallel_pairs_sines_and_a_zero_length_end_line():
+    from vslam_gym.slam.creation import _parallel_pairs, _SegmentModeller
+    from vslam_gym.slam.gaussian import FirstOrderLinearization
+
+    bearings = np.deg2rad(np.arange(20.0, -21.0, -1.0))
+    ranges = 3.0 / np.cos(bearings)  # a wall at x = 3 [m] seen from the origin
+    pose = np.zeros(3)
+    groups = [(0, 20), (20, 40)]
+    for zero_first in (False, True):
+        r = ranges.copy()
+        if zero_first:
+            r[0] = 0.0  # the left end line has no length: its sine is 0
+        scan = Scan.from_arrays(r, bearings, SENSOR)
+        modeller = _SegmentModeller(
+            scan, 0, 40, pose, SENSOR, ModelConfig(), FirstOrderLinearization()
+        )
+        sines = _parallel_pairs(modeller, groups)
+        assert sines.shape == (3,) and np.isfinite(sines).all()
+        assert (sines[0] == 0.0) == zero_first
+        if not zero_first:
+            np.testing.assert_allclose(sines[1], 0.0, atol=1e-12)  # two fits of one wall
+            np.testing.assert_allclose(sines[[0, 2]], np.cos(bearings[[0, -1]]), rtol=1e-9)

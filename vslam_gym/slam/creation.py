@@ -248,7 +248,8 @@ def _polar_point_distribution(
     mu = stack_last(pose[0] + r * c, pose[1] + r * s_)
     jac = np.empty((*c.shape, 2, 2))  # [[c, -r s], [s, r c]]
     jac[..., 0, 0], jac[..., 0, 1], jac[..., 1, 0], jac[..., 1, 1] = c, -r * s_, s_, r * c
-    cov = (jac * np.diag(sensor.Q)) @ np.swapaxes(jac, -1, -2)
+    q_diag = np.array([sensor.sigma_range**2, sensor.sigma_bearing**2])  # np.diag(sensor.Q)
+    cov = (jac * q_diag) @ np.swapaxes(jac, -1, -2)
     ut = ~(zp[:, 0] == 0.0) if not isinstance(lin, FirstOrderLinearization) else None
     if ut is not None and np.any(ut):
         q = np.broadcast_to(sensor.Q, (int(ut.sum()), 2, 2))
@@ -586,8 +587,11 @@ def _parallel_pairs(modeller: _SegmentModeller, groups: list[tuple[int, int]]) -
     lines *= np.where((lines * span).sum(-1) < 0.0, -1.0, 1.0)[:, None]
     cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
     norms = np.hypot(d[:-1, 0], d[:-1, 1]) * np.hypot(d[1:, 0], d[1:, 1])
+    positive = norms > 0
+    if positive.all():  # the usual case: no zero-length line
+        return np.abs(cross) / norms
     with np.errstate(divide="ignore", invalid="ignore"):  # a zero-length line: sine 0
-        return np.where(norms > 0, np.abs(cross) / np.where(norms > 0, norms, 1.0), 0.0)
+        return np.where(positive, np.abs(cross) / np.where(positive, norms, 1.0), 0.0)
 
 
 def vertex_distribution(
