@@ -309,15 +309,21 @@ def _groups(mu_c: np.ndarray, cov_c: np.ndarray, config: ModelConfig) -> Iterato
     # ``b`` are tested in vectorised batches (each batch twice as long as the one before)
     # instead of one at a time.
     x, y = mu_c[:, 0], mu_c[:, 1]
+    terms = np.empty((6, n))  # 1, x, y, x x, y y, x y per point
+    terms[0] = 1.0
+    terms[1:3] = mu_c.T
+    np.multiply(terms[1:3], terms[1:3], out=terms[3:5])
+    np.multiply(x, y, out=terms[5])
     cs = np.zeros((6, n + 1))
-    np.cumsum([np.ones(n), x, y, x * x, y * y, x * y], axis=1, out=cs[:, 1:])
+    np.cumsum(terms, axis=1, out=cs[:, 1:])
     cxx, cxy, cyy = cov_c[:, 0, 0], cov_c[:, 0, 1], cov_c[:, 1, 1]
     limit = config.grouping_mahalanobis**2
     a, b = 0, start
     batch = _GROUPING_BATCH
     while b < n:
-        ends = np.arange(b, min(b + batch, n))
-        cnt, sx, sy, sxx, syy, sxy = cs[:, ends + 1] - cs[:, a, None]
+        stop = min(b + batch, n)
+        ends = np.arange(b, stop)
+        cnt, sx, sy, sxx, syy, sxy = cs[:, b + 1 : stop + 1] - cs[:, a, None]  # sums a..ends
         mx, my = sx / cnt, sy / cnt
         psi = 0.5 * np.arctan2(2.0 * (sxy - sx * my), (sxx - sx * mx) - (syy - sy * my))
         nx, ny = -np.sin(psi)[:, None], np.cos(psi)[:, None]

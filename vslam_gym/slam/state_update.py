@@ -309,7 +309,8 @@ def _woodbury(
     s_cols = sigma[:, idx]
     s_ss = s_cols[idx]
     gain = np.linalg.solve((np.eye(idx.size) + s_ss @ lam).T, (s_cols @ lam).T).T
-    sigma_new = symmetrize(sigma - gain @ s_cols.T)
+    change = gain @ s_cols.T
+    sigma_new = symmetrize(np.subtract(sigma, change, out=change))
     mu_new = mu + sigma_new[:, idx] @ (eta - lam @ mu[idx])
     return mu_new, sigma_new
 
