@@ -76,9 +76,14 @@ class SensorConfig:
         return float(np.deg2rad(self.sigma_bearing_deg))
 
     @property
+    def polar_variances(self) -> tuple[float, float]:
+        """``(sigma_r^2 [m^2], sigma_phi^2 [rad^2])``: the diagonal of :attr:`Q`."""
+        return (self.sigma_range**2, self.sigma_bearing**2)
+
+    @property
     def Q(self) -> np.ndarray:  # noqa: N802 - the thesis's name
         """Per-beam measurement covariance ``diag(sigma_r^2, sigma_phi^2)`` for ``[r, phi]``."""
-        return np.diag([self.sigma_range**2, self.sigma_bearing**2])
+        return np.diag(self.polar_variances)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> SensorConfig:

@@ -82,7 +82,7 @@ def _stacked(scan: Scan, first: int, last: int, sensor: SensorConfig):
     z[0::2] = scan.ranges[first : last + 1]
     z[1::2] = scan.bearings[first : last + 1]
     var = np.empty(2 * n)
-    var[0::2], var[1::2] = sensor.sigma_range**2, sensor.sigma_bearing**2
+    var[0::2], var[1::2] = sensor.polar_variances
     return z, var
 
 
@@ -248,8 +248,7 @@ def _polar_point_distribution(
     mu = stack_last(pose[0] + r * c, pose[1] + r * s_)
     jac = np.empty((*c.shape, 2, 2))  # [[c, -r s], [s, r c]]
     jac[..., 0, 0], jac[..., 0, 1], jac[..., 1, 0], jac[..., 1, 1] = c, -r * s_, s_, r * c
-    q_diag = np.array([sensor.sigma_range**2, sensor.sigma_bearing**2])  # np.diag(sensor.Q)
-    cov = (jac * q_diag) @ np.swapaxes(jac, -1, -2)
+    cov = (jac * np.array(sensor.polar_variances)) @ np.swapaxes(jac, -1, -2)
     ut = ~(zp[:, 0] == 0.0) if not isinstance(lin, FirstOrderLinearization) else None
     if ut is not None and np.any(ut):
         q = np.broadcast_to(sensor.Q, (int(ut.sum()), 2, 2))

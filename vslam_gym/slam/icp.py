@@ -1217,14 +1217,12 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
         whitening = np.stack([np.eye(3) if b is None else b.whitening for b in bounds])
         limit2 = np.array([0.0 if b is None else b.limit * b.limit for b in bounds])
     # An alignment without used points (or lines) divides by zero: its rms, its centroid
-    # and its condition number are masked below.
+    # and its condition number are masked below (the one-by-one finish has its own checks).
     with np.errstate(divide="ignore", invalid="ignore"):
         for it in range(config.max_iterations):
             act = batch.rows
             if act.size <= _SEQUENTIAL_AT_MOST:
-                return _finish_one_by_one(
-                    batch, it, state, seen, watches, inputs, pose0, config, max_range, half_fov
-                )
+                break
             running = np.ones(act.size, dtype=bool)
             stop = _Stopper(act, running, reasons)
             vis = batch.visible(px[act], py[act], pth[act], max_range, half_fov)
@@ -1296,7 +1294,11 @@ def _iterate(batch, state, reasons, pose0, config, max_range, half_fov, inputs):
                 if not n_running:
                     return {}
                 batch.keep(running)
-    return {}
+        else:  # the iteration limit: every alignment has stopped
+            return {}
+    return _finish_one_by_one(
+        batch, it, state, seen, watches, inputs, pose0, config, max_range, half_fov
+    )
 
 
 def _finish_one_by_one(
