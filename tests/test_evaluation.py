@@ -459,6 +459,10 @@ def test_evaluate_end_to_end_is_deterministic(episode, tmp_path, capsys):
     assert 0.0 < seed["odom_ate_rmse_m"] < 0.5
     assert 0.0 <= seed["nees_in_band_fraction"] <= 1.0
     assert 0.0 <= seed["duplicate_fraction"] < 1.0
+    # the one star-shaped obstacle is one surface: a perfect map has no duplicate
+    assert seed["surface_pieces"] == 1 and seed["duplicate_floor"] == 0.0
+    assert seed["landmarks_per_piece"] == seed["landmarks"]
+    assert "floor" in printed and "pieces" in printed
     assert seed["association_precision"] <= seed["compound_precision"] <= 1.0
     assert "cmp P" in printed
     # every new landmark has one cause, and the first one of an obstacle is new

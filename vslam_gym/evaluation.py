@@ -50,6 +50,7 @@ from vslam_gym.slam.config import SensorConfig
 from vslam_gym.slam.filter import Belief, SlamConfig, VertexSLAM
 from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.motion import increments_between, motion_update, odometry_noise
+from vslam_gym.surfaces import SurfacePieces, duplicate_floor, surface_pieces
 
 __all__ = [
     "ASSOCIATION_OUTCOMES",
@@ -118,6 +119,9 @@ its route, e.g. stuck on an obstacle, must not run forever): 500 s of simulated 
 the default control period, ten times the longest shipped route."""
 NO_HIT = -1
 """``info["hit_ids"]`` of a beam with no return."""
+SURFACE_HIT_RADIUS = 0.1
+"""A beam hit counts for the surface piece (:mod:`vslam_gym.surfaces`) whose boundary is
+within this distance [m]: over three standard deviations of the simulated range noise."""
 ASSOCIATION_OUTCOMES = ("updated", "associated")
 """Decision outcomes that are a set-to-landmark association."""
 MAP_OUTCOMES = ("created", "updated")
@@ -205,6 +209,9 @@ class EpisodeLog:
         route_done: the route follower reached its last waypoint.
         wall_s: wall time [s] of the episode (simulation, filter and logging).
         loop_closures: steps that fused a revisit match (``Belief.loop_closed``).
+        surface_hits: per surface piece of the world (:func:`vslam_gym.surfaces.surface_pieces`)
+            the most beams of one scan that hit it (computed from the true pose); None
+            when not recorded.
     """
 
     world_name: str
@@ -226,6 +233,7 @@ class EpisodeLog:
     route_done: bool = False
     wall_s: float = 0.0
     loop_closures: int = 0
+    surface_hits: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -319,6 +327,8 @@ def run_episode(
     config = slam_config(base, env.world.odometry.alphas)
     sensor = sensor_from_lidar(env.lidar_spec)
     period = env.physics_config.control_period
+    pieces = surface_pieces(env.world)  # cached per world; not part of the episode's time
+    surface_hits = np.zeros(pieces.count, dtype=np.intp)
     start = time.perf_counter()
     obs, info = env.reset(seed=seed)
     slam = VertexSLAM(sensor, config, initial_pose=info["pose"])
@@ -349,6 +359,9 @@ def run_episode(
             collisions.append(bool(info["collision"]))
             loop_closures += int(belief.loop_closed)
             hit_ids = info["hit_ids"]
+            _count_surface_hits(
+                surface_hits, pieces, info["pose"], obs["scan"], info["bearings"], hit_ids
+            )
             decisions.extend(
                 DecisionRecord(
                     step,
@@ -391,7 +404,31 @@ def run_episode(
         route_done=follower.done,
         wall_s=time.perf_counter() - start,
         loop_closures=loop_closures,
+        surface_hits=surface_hits,
     )
+
+
+def _count_surface_hits(
+    counts: np.ndarray,
+    pieces: SurfacePieces,
+    pose: np.ndarray,
+    ranges: np.ndarray,
+    bearings: np.ndarray,
+    hit_ids: np.ndarray,
+) -> None:
+    """Raise ``counts`` (per surface piece) to this scan's beams on each piece, in place.
+
+    The hit points are computed from the TRUE pose (the lidar sits at the robot centre
+    in simulation), the measured ranges and the nominal bearings: ground truth only.
+    """
+    x, y, theta = (float(v) for v in pose)
+    r = np.asarray(ranges, dtype=float)
+    angle = theta + np.asarray(bearings, dtype=float)
+    points = np.column_stack([x + r * np.cos(angle), y + r * np.sin(angle)])
+    on = pieces.hit_pieces(points, hit_ids, SURFACE_HIT_RADIUS)
+    on = on[on >= 0]
+    if on.size:
+        np.maximum(counts, np.bincount(on, minlength=counts.size), out=counts)
 
 
 # ---------------------------------------------------------------------------- metrics
@@ -754,7 +791,13 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     ``landmarks_per_obstacle`` (landmarks / obstacles mapped), ``duplicate_fraction``;
     ``created_new``, ``created_far``, ``created_gated``, ``created_rejected``,
     ``created_accepted`` (the new landmarks by :func:`creation_causes`, a diagnostic of
-    the duplicates);
+    the duplicates); ``surface_pieces`` (the contiguous surface pieces of the obstacles,
+    :mod:`vslam_gym.surfaces`, that some scan hit with at least
+    ``FilterConfig.min_set_beams`` beams: the fewest landmarks that model everything
+    seen), ``landmarks_per_piece`` and ``duplicate_floor`` (the duplicate fraction of a
+    map with one landmark per piece, :func:`vslam_gym.surfaces.duplicate_floor`: the
+    lowest the ``duplicate_fraction`` of any per-surface map can be on the route; NaN
+    when the log has no ``surface_hits``);
     ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``);
     ``step_ms_median``, ``step_ms_p95``, ``step_ms_mean`` [ms] (the mean is what a
     throughput sees when a motion filter makes most steps cheap);
@@ -776,6 +819,12 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     compound, _ = compound_precision(log.decisions, ids)
     causes = creation_causes(log.decisions, ids)
     median, p95 = timing_summary(log.step_ms)
+    if log.surface_hits is None:
+        n_pieces, floor = math.nan, math.nan
+    else:
+        seen = log.surface_hits >= log.config.filter.min_set_beams
+        owners = surface_pieces(log.world).owner[seen]
+        n_pieces, floor = int(owners.size), duplicate_floor(owners)
     out: dict[str, Any] = {
         "world": log.world_name,
         "preset": log.preset,
@@ -810,6 +859,9 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
             "obstacles": len(log.world.obstacles),
             "landmarks_per_obstacle": len(final.landmarks) / mapped if mapped else math.nan,
             "duplicate_fraction": duplicate_fraction(final_ids),
+            "surface_pieces": n_pieces,
+            "landmarks_per_piece": len(final.landmarks) / n_pieces if n_pieces else math.nan,
+            "duplicate_floor": floor,
             **{f"created_{cause}": count for cause, count in causes.items()},
             "loop_closures": log.loop_closures,
             "step_ms_median": median,
@@ -1293,7 +1345,9 @@ _TABLE_COLUMNS = (
     ("upd P", "update_precision", "{:.3f}"),
     ("cmp P", "compound_precision", "{:.3f}"),
     ("dup", "duplicate_fraction", "{:.2f}"),
+    ("floor", "duplicate_floor", "{:.2f}"),
     ("LMs", "landmarks", "{:.1f}"),
+    ("pieces", "surface_pieces", "{:.1f}"),
     ("ms med", "step_ms_median", "{:.1f}"),
     ("ms p95", "step_ms_p95", "{:.1f}"),
     ("ms mean", "step_ms_mean", "{:.1f}"),
