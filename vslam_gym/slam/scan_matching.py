@@ -53,6 +53,8 @@ __all__ = [
 
 AMBIGUITY_MODES = ("decline", "prior")
 """``ScanMatcherConfig.on_ambiguity``."""
+HYPOTHESIS_SPACINGS = ("span", "step")
+"""``ScanMatcherConfig.hypothesis_spacing``."""
 PSD_TOLERANCE = 1e-9
 """Relative negative eigenvalue of ``prior_cov`` still accepted as round-off."""
 
@@ -96,6 +98,11 @@ class ScanMatcherConfig:
         heading_step_deg: spacing [deg] of the hypotheses (well inside the convergence
             basin of the Gauss-Newton, about 5-10 deg indoors).
         max_hypotheses: at most this many hypotheses (the span is covered evenly).
+        hypothesis_spacing: ``"span"``: ``2 ceil(span / step) + 1`` hypotheses spread
+            evenly over the span, so at least three whenever the heading is uncertain
+            (1 deg apart for a heading sigma of 0.25 deg: the same basin three times);
+            ``"step"``: hypotheses exactly ``heading_step_deg`` apart within the span,
+            one (the prediction) when the span is narrower than a step.
         coarse_iterations: Gauss-Newton steps of the coarse phase, with the
             correspondence gate shrinking linearly from ``max_distance_start`` to
             ``max_distance_mid`` [m].
@@ -188,6 +195,7 @@ class ScanMatcherConfig:
     heading_sigmas: float = 4.0
     heading_step_deg: float = 5.0
     max_hypotheses: int = 25
+    hypothesis_spacing: str = "span"
     coarse_iterations: int = 8
     coarse_keep: int = 6
     coarse_keep_after: int = 0
@@ -272,6 +280,11 @@ class ScanMatcherConfig:
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"ScanMatcherConfig.{name} must lie in [0, 1], got {value}")
+        if self.hypothesis_spacing not in HYPOTHESIS_SPACINGS:
+            raise ValueError(
+                f"ScanMatcherConfig.hypothesis_spacing must be one of {HYPOTHESIS_SPACINGS}, "
+                f"got {self.hypothesis_spacing!r}"
+            )
         if self.on_ambiguity not in AMBIGUITY_MODES:
             raise ValueError(
                 f"ScanMatcherConfig.on_ambiguity must be one of {AMBIGUITY_MODES}, "
@@ -525,6 +538,11 @@ def _hypotheses(prior: np.ndarray, sigma_theta: float, config: ScanMatcherConfig
     """``(h, 3)`` start poses: the prior with headings over ``+- heading_sigmas`` sigma."""
     half = config.heading_sigmas * max(float(sigma_theta), 0.0)
     step = np.deg2rad(config.heading_step_deg)
+    if config.hypothesis_spacing == "step":
+        k = min(int(np.floor(half / step)), (int(config.max_hypotheses) - 1) // 2)
+        starts = np.repeat(prior[None, :], 2 * k + 1, axis=0)
+        starts[:, 2] = prior[2] + np.arange(-k, k + 1) * step
+        return starts
     count = min(int(config.max_hypotheses), 2 * int(np.ceil(half / step)) + 1)
     offsets = np.linspace(-half, half, count) if count > 1 else np.zeros(1)
     starts = np.repeat(prior[None, :], offsets.size, axis=0)
