@@ -12,6 +12,7 @@ from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.scan_matching import (
     LocalMap,
     ScanMatcherConfig,
+    _hypotheses,
     match_scan,
     scan_normals,
     scan_points,
@@ -58,6 +59,35 @@ def test_recovers_a_03_m_15_deg_offset_in_an_l_room_from_heading_hypotheses():
     err = result.pose - true
     err[2] = wrap_angle(err[2])
     assert err @ np.linalg.solve(result.cov, err) < 16.0  # within 4 sigma
+
+
+def test_step_spacing_places_hypotheses_a_step_apart_and_one_for_a_narrow_span():
+    step_config = ScanMatcherConfig(hypothesis_spacing="step")
+    assert step_config.heading_step_deg == 5.0 and step_config.heading_sigmas == 4.0
+    prior = np.array([1.0, 2.0, 0.3])
+    # +- 4 sigma = +- 2.3 deg: one start (the span's default spreads three over it)
+    narrow = _hypotheses(prior, np.deg2rad(0.575), step_config)
+    assert narrow.tolist() == [prior.tolist()]
+    assert _hypotheses(prior, np.deg2rad(0.575), ScanMatcherConfig()).shape[0] == 3
+    # +- 4 sigma = +- 22 deg: -20 ... 20 deg in 5 deg steps, positions unchanged
+    wide = _hypotheses(prior, np.deg2rad(5.5), step_config)
+    assert np.allclose(np.rad2deg(wide[:, 2] - prior[2]), np.arange(-20.0, 21.0, 5.0))
+    assert np.all(wide[:, :2] == prior[:2])
+    capped = _hypotheses(prior, np.deg2rad(5.5), replace(step_config, max_hypotheses=4))
+    assert np.allclose(np.rad2deg(capped[:, 2] - prior[2]), [-5.0, 0.0, 5.0])
+    with pytest.raises(ValueError, match="hypothesis_spacing"):
+        ScanMatcherConfig(hypothesis_spacing="even")
+
+
+def test_step_spacing_still_recovers_a_15_deg_offset():
+    ref_pose = np.array([2.0, 2.0, 0.6])
+    true = np.array([2.25, 2.15, 0.6 + np.deg2rad(15.0)])
+    local = _map(ref_pose, L_ROOM)
+    config = ScanMatcherConfig(hypothesis_spacing="step")
+    result = match_scan(_points(true, L_ROOM, 1), local, ref_pose, _cov(0.2, 8.0), config=config)
+    assert result is not None and result.hypotheses == 13  # +- 32 deg in 5 deg steps
+    assert np.hypot(*(result.pose[:2] - true[:2])) < 0.03
+    assert abs(wrap_angle(result.pose[2] - true[2])) < np.deg2rad(0.5)
 
 
 def test_a_single_hypothesis_at_the_prior_does_not_reach_the_truth():
