@@ -688,7 +688,10 @@ class FilterConfig:
             -> 0.148 m (its round-off spread is 0.096-0.098 m), ``house`` 20-seed ATE
             0.262 / 0.293 m in two samples (default 0.21-0.28 m). 10 in the ``logs``
             preset (Radish logs: accuracy level, 6-9 % less time per scan; 3 was
-            worse on ACES).
+            worse on ACES). At 3 on session 26's default (docs/measurements.md,
+            "Stopping diverging alignments, re-measured"): routes level, about 5 % less
+            filter time, the ``house`` median step unchanged, one explorer world
+            diverged.
         measurement_min_travel: a motion filter: the landmark measurement update (step 3
             on) runs only once the pose mean has moved at least this far [m] ...
         measurement_min_turn: ... or turned at least this much [rad] since the last
