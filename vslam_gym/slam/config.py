@@ -816,7 +816,20 @@ class FilterConfig:
         loop_keyframe_distance: see ``loop_closure`` [m]; >= 0.
         loop_keyframe_heading_deg: see ``loop_closure`` [deg]; >= 0.
         loop_min_inlier_fraction: see ``loop_closure``; in ``[0, 1]``.
-        loop_max_mahalanobis: see ``loop_closure``; > 0.
+        loop_max_mahalanobis: see ``loop_closure``; > 0. 2 by default since session 28
+            (6 before, and in the ``logs`` and ``fast`` presets): since the default's
+            motion is scan-matched (session 25) its pose is seldom more than a few
+            centimetres off, and on the random worlds the fused matches beyond 2
+            (0.3-1.05 m from a pose 2-10 cm off, 42-60 % inliers) were aliases that moved
+            the pose away from the truth, but for a few that undid an earlier alias; on
+            ``house`` (seeds 0-5) every fused match lies within 1.6. Measured 6 -> 2
+            (docs/measurements.md, "Revisit matches within 2 sigma"): ``small``,
+            ``curved`` and ``house`` identical to the last digit, single_landmark
+            position ATE 0.111 -> 0.103 m and final error 0.163 -> 0.102 m in two
+            round-off samples; the ``frontier`` explorer on the 60 worlds 1000-1059
+            position ATE 0.084 -> 0.078 m (paired t -1.1; world 1029 0.386 -> 0.075 m),
+            coverage 0.316 -> 0.317, mean NEES 113 -> 89. Strong matches keep their own
+            limit (``loop_strong_max_mahalanobis``).
         loop_max_distance_start: the whole-scan matcher's first correspondence
             distance [m] in the revisit match (``ScanMatcherConfig.max_distance_start``
             for this match only) ...
@@ -828,7 +841,8 @@ class FilterConfig:
             0.079. With 2 m / 1 m and ``loop_max_mahalanobis`` 10: 0.097 / 0.060 /
             0.079, but false closures elsewhere (a wall matched 1.5 m along itself at
             7.7 sigma in one of 20 random worlds, ``frontier`` ATE 0.115 -> 0.194 m;
-            ACES synthetic seed 0 2.75 m and logged 2.16 m): 6 by default.
+            ACES synthetic seed 0 2.75 m and logged 2.16 m): 6 then (2 by default
+            since session 28, see ``loop_max_mahalanobis``).
         loop_sigma_floor: standard deviations ``(x [m], y [m], theta [rad])`` added in
             quadrature to a revisit match's noise; each >= 0. On the random worlds the
             match is fused on most steps and the pose grows overconfident (``frontier``,
@@ -980,7 +994,7 @@ class FilterConfig:
     loop_keyframe_distance: float = 0.5
     loop_keyframe_heading_deg: float = 15.0
     loop_min_inlier_fraction: float = 0.4
-    loop_max_mahalanobis: float = 6.0
+    loop_max_mahalanobis: float = 2.0
     loop_sigma_floor: tuple[float, float, float] = (0.0, 0.0, 0.0)
     loop_cooldown: int = 0
     loop_track_hypotheses: int = 0
