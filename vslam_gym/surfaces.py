@@ -13,10 +13,10 @@ robot saw has the duplicate fraction ``1 - obstacles / pieces``
 The pieces are found on a raster (:func:`surface_pieces`): the cells inside an obstacle
 get its id, the free cells connected to a point of the free space (the robot's start)
 are the reachable space, the obstacle cells next to it are the boundary, and each
-obstacle's boundary cells fall into 8-connected pieces. A scan's beam hits are then
-assigned to the nearest boundary cell of the obstacle they hit
-(:meth:`SurfacePieces.hit_pieces`). Ground truth only: a metric, never an input of the
-estimator.
+obstacle's boundary cells fall into 8-connected pieces. A scan's beam hit then belongs
+to the piece of its nearest boundary cell when that cell is near and of the obstacle
+the beam hit (:meth:`SurfacePieces.hit_pieces`). Ground truth only: a metric, never an
+input of the estimator.
 
 Units and frames: metres, world frame; rasters are indexed ``[row, column]`` = ``[y, x]``.
 """
