@@ -50,11 +50,17 @@ def test_walls_that_abut_the_outer_wall_split_its_face_into_pieces():
     assert duplicate_floor(np.array(owners)) == pytest.approx(1.0 - 3 / 4)
 
 
-def test_solid_obstacles_are_one_piece_each_and_shared_cells_go_to_the_deeper_one():
+def test_overlapping_solid_obstacles_are_one_piece_each_on_their_own_boundary():
     box = PolygonObstacle(((1.5, 0.5), (2.5, 0.5), (2.5, 1.5), (1.5, 1.5)))
     disc = CircleObstacle((2.5, 1.0), 0.3)  # overlaps the box's right side
     world = _world(box, disc, start=(0.5, 1.0))
     assert _owners(world) == [0, 1, 2]
+    pieces = surface_pieces(world)
+    hits = np.array([[1.49, 1.0], [2.81, 1.0], [2.0, 0.49]])  # box left, disc right, box bottom
+    got = pieces.hit_pieces(hits, np.array([1, 2, 1]), 0.05)
+    assert pieces.owner[got].tolist() == [1, 2, 1]
+    # a hit on the disc's part inside the box is not on any boundary
+    assert pieces.hit_pieces(np.array([[2.4, 1.0]]), np.array([2]), 0.05).tolist() == [-1]
 
 
 def test_hit_pieces_assigns_hits_to_the_nearest_cell_of_the_obstacle_they_hit():
