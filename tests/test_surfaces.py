@@ -5,9 +5,10 @@ import math
 import numpy as np
 import pytest
 
+from vslam_gym.evaluation import duplicate_fraction
 from vslam_gym.sim.world import CircleObstacle, PolygonObstacle, RobotSpec, WallObstacle, World
 from vslam_gym.sim.world_file import load_world
-from vslam_gym.surfaces import duplicate_floor, surface_pieces
+from vslam_gym.surfaces import surface_pieces
 
 ROOM = WallObstacle(((0.0, 0.0), (4.0, 0.0), (4.0, 2.0), (0.0, 2.0), (0.0, 0.0)), thickness=0.2)
 """A closed 4 m x 2 m room: one obstacle (id 0), as ``house``'s outer walls."""
@@ -47,7 +48,7 @@ def test_walls_that_abut_the_outer_wall_split_its_face_into_pieces():
     )
     owners = _owners(world)
     assert owners == [0, 0, 1, 2]
-    assert duplicate_floor(np.array(owners)) == pytest.approx(1.0 - 3 / 4)
+    assert duplicate_fraction(owners) == pytest.approx(1.0 - 3 / 4)  # the metric's floor
 
 
 def test_overlapping_solid_obstacles_are_one_piece_each_on_their_own_boundary():
@@ -98,17 +99,18 @@ def test_bad_arguments_are_rejected():
         surface_pieces(world, (0.0, 1.0))  # on the outer wall
 
 
-def test_duplicate_floor():
-    assert duplicate_floor(np.array([3, 3, 5])) == pytest.approx(1.0 - 2 / 3)
-    assert duplicate_floor(np.array([0, 1, 2])) == 0.0
-    assert math.isnan(duplicate_floor(np.array([], dtype=int)))
+def test_the_floor_is_the_duplicate_fraction_of_the_pieces_obstacle_ids():
+    # pieces stand for landmarks; no piece has the "no obstacle" id -1
+    assert duplicate_fraction([3, 3, 5]) == pytest.approx(1.0 - 2 / 3)
+    assert duplicate_fraction([0, 1, 2]) == 0.0
+    assert math.isnan(duplicate_fraction([]))
 
 
 def test_house_outer_wall_is_many_pieces_and_the_small_worlds_one_per_obstacle():
     house = surface_pieces(load_world("house"))
     per_obstacle = np.bincount(house.owner)
     assert per_obstacle[0] >= 10  # the outer walls, seen from every room
-    assert duplicate_floor(house.owner) > 0.15
+    assert duplicate_fraction(house.owner.tolist()) > 0.15
     for name in ("single_landmark", "small", "curved"):
         world = load_world(name)
         owners = surface_pieces(world).owner

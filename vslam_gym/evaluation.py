@@ -48,9 +48,9 @@ from scipy.stats import chi2
 
 from vslam_gym.slam.config import SensorConfig
 from vslam_gym.slam.filter import Belief, SlamConfig, VertexSLAM
-from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.geometry import polar_to_cartesian, wrap_angle
 from vslam_gym.slam.motion import increments_between, motion_update, odometry_noise
-from vslam_gym.surfaces import SurfacePieces, duplicate_floor, surface_pieces
+from vslam_gym.surfaces import SurfacePieces, surface_pieces
 
 __all__ = [
     "ASSOCIATION_OUTCOMES",
@@ -421,11 +421,7 @@ def _count_surface_hits(
     The hit points are computed from the TRUE pose (the lidar sits at the robot centre
     in simulation), the measured ranges and the nominal bearings: ground truth only.
     """
-    x, y, theta = (float(v) for v in pose)
-    r = np.asarray(ranges, dtype=float)
-    angle = theta + np.asarray(bearings, dtype=float)
-    points = np.column_stack([x + r * np.cos(angle), y + r * np.sin(angle)])
-    on = pieces.hit_pieces(points, hit_ids, SURFACE_HIT_RADIUS)
+    on = pieces.hit_pieces(polar_to_cartesian(ranges, bearings, pose), hit_ids, SURFACE_HIT_RADIUS)
     on = on[on >= 0]
     if on.size:
         np.maximum(counts, np.bincount(on, minlength=counts.size), out=counts)
@@ -795,8 +791,8 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     :mod:`vslam_gym.surfaces`, that some scan hit with at least
     ``FilterConfig.min_set_beams`` beams: the fewest landmarks that model everything
     seen), ``landmarks_per_piece`` and ``duplicate_floor`` (the duplicate fraction of a
-    map with one landmark per piece, :func:`vslam_gym.surfaces.duplicate_floor`: the
-    lowest the ``duplicate_fraction`` of any per-surface map can be on the route; NaN
+    map with one landmark per piece, :func:`duplicate_fraction` of the pieces' obstacle
+    ids: the lowest the ``duplicate_fraction`` of any per-surface map can be on the route; NaN
     when the log has no ``surface_hits``);
     ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``);
     ``step_ms_median``, ``step_ms_p95``, ``step_ms_mean`` [ms] (the mean is what a
@@ -824,7 +820,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     else:
         seen = log.surface_hits >= log.config.filter.min_set_beams
         owners = surface_pieces(log.world).owner[seen]
-        n_pieces, floor = int(owners.size), duplicate_floor(owners)
+        n_pieces, floor = int(owners.size), duplicate_fraction(owners.tolist())
     out: dict[str, Any] = {
         "world": log.world_name,
         "preset": log.preset,

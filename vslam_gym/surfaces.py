@@ -7,8 +7,8 @@ rooms, and each face of an inner wall is a surface of its own. A *surface piece*
 maximal contiguous part of one obstacle's boundary that faces the free space the robot
 moves in: the two faces of a wall are one piece when they join around a free end, and
 two when both ends abut other walls. A map with exactly one landmark per piece the
-robot saw has the duplicate fraction ``1 - obstacles / pieces``
-(:func:`duplicate_floor`), the floor of the metric on that route.
+robot saw has the duplicate fraction ``1 - obstacles / pieces`` (the metric of the
+pieces' obstacle ids), the floor of the metric on that route.
 
 The pieces are found on a raster (:func:`surface_pieces`): the cells inside an obstacle
 get its id, the free cells connected to a point of the free space (the robot's start)
@@ -23,7 +23,6 @@ Units and frames: metres, world frame; rasters are indexed ``[row, column]`` = `
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -33,7 +32,7 @@ from scipy import ndimage
 from vslam_gym.sim.shapes import obstacle_bounds, signed_distance
 from vslam_gym.sim.world import World
 
-__all__ = ["DEFAULT_CELL", "SurfacePieces", "duplicate_floor", "surface_pieces"]
+__all__ = ["DEFAULT_CELL", "SurfacePieces", "surface_pieces"]
 
 DEFAULT_CELL = 0.02
 """Raster cell size [m]: five cells across the thinnest shipped walls (0.1 m), so that
@@ -142,6 +141,7 @@ def _surface_pieces(world: World, point: tuple[float, float], cell: float) -> Su
     cols, rows = (int(v) + 1 for v in np.ceil((hi - lo) / cell))
     owner = np.full((rows, cols), -1, dtype=np.intp)
     depth = np.zeros((rows, cols))  # signed distance of the owning obstacle (< 0)
+    blocks = []  # per obstacle the raster block of its bounding box: all its cells
     for k, (obstacle, box) in enumerate(zip(world.obstacles, boxes, strict=True)):
         c0, r0 = np.floor((box[:2] - lo) / cell).astype(int)
         c1, r1 = np.ceil((box[2:] - lo) / cell).astype(int) + 1
@@ -152,6 +152,7 @@ def _surface_pieces(world: World, point: tuple[float, float], cell: float) -> Su
         d = signed_distance(obstacle, np.column_stack([gx.ravel(), gy.ravel()]))
         d = d.reshape(gx.shape)
         block = (slice(r0, r1), slice(c0, c1))
+        blocks.append(block)
         take = (d < 0.0) & (d < depth[block])  # the deepest obstacle owns a shared cell
         owner[block] = np.where(take, k, owner[block])
         depth[block] = np.where(take, d, depth[block])
@@ -165,9 +166,9 @@ def _surface_pieces(world: World, point: tuple[float, float], cell: float) -> Su
     piece = np.full((rows, cols), -1, dtype=np.intp)
     owners: list[int] = []
     sizes: list[int] = []
-    for k in np.unique(owner[boundary]).tolist():
-        labels, n = ndimage.label(boundary & (owner == k), structure=np.ones((3, 3)))
-        piece = np.where(labels > 0, labels - 1 + len(owners), piece)
+    for k, block in enumerate(blocks):
+        labels, n = ndimage.label(boundary[block] & (owner[block] == k), structure=np.ones((3, 3)))
+        piece[block] = np.where(labels > 0, labels - 1 + len(owners), piece[block])
         sizes += np.bincount(labels.ravel(), minlength=n + 1)[1:].tolist()
         owners += [k] * n
     # Every cell's nearest boundary cell (Euclidean distance transform of the rest).
@@ -180,16 +181,3 @@ def _surface_pieces(world: World, point: tuple[float, float], cell: float) -> Su
         np.array(owners, dtype=np.intp),
         np.array(sizes, dtype=np.intp),
     )
-
-
-def duplicate_floor(owners: np.ndarray) -> float:
-    """``1 - obstacles / pieces`` of one landmark per piece in ``owners``; NaN for none.
-
-    Args:
-        owners: ``(pieces,)`` obstacle id of every piece seen (the same definition as
-            :func:`vslam_gym.evaluation.duplicate_fraction`, with pieces for landmarks).
-    """
-    owners = np.asarray(owners).ravel()
-    if owners.size == 0:
-        return math.nan
-    return 1.0 - np.unique(owners).size / owners.size
