@@ -723,7 +723,10 @@ def align_many(
     if isinstance(points, list):
         if len(points) != len(models):
             raise ValueError(f"got {len(points)} point sets for {len(models)} models")
-        sets = [_check_points(p) for p in points]
+        # A caller passes the same set once per candidate: each object is checked (and
+        # copied) once; the copies are only read.
+        checked: dict[int, np.ndarray] = {}
+        sets = [_once(checked, p, _check_points) for p in points]
     else:
         sets = [_check_points(points)] * len(models)
     pose0 = check_pose(pose)
@@ -737,6 +740,17 @@ def align_many(
     unknowns = [m.u > config.unknown_threshold for m in models]
     prior = _prior_weight(prior_weight)
     return _align_batch(sets, lines, unknowns, pose0, config, max_range, half_fov, bounds, prior)
+
+
+def _once(checked: dict[int, np.ndarray], value: object, check) -> np.ndarray:
+    """``check(value)``, computed once per object in ``checked`` (keyed by ``id``).
+
+    The caller keeps every value alive while ``checked`` is in use (ids stay unique).
+    """
+    key = id(value)
+    if key not in checked:
+        checked[key] = check(value)
+    return checked[key]
 
 
 def line_geometry(model: LandmarkModel) -> LineGeometry:
