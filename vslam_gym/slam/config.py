@@ -8,6 +8,7 @@ configuration. Build from a plain mapping with :meth:`SensorConfig.from_dict` /
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -880,6 +881,8 @@ class FilterConfig:
             and 2: ``house`` seeds 0-9 unchanged (final error 0.050 / 0.051 m), but on
             the random worlds (``frontier``, 20 worlds) no better: mean NEES 621 / 434,
             ATE 0.136 / 0.133 m against 528 and 0.115 m. 0 by default.
+        loop_max_correction: a revisit match is fused only when its position lies at
+            most this far [m] from the predicted position (``inf``: no limit); > 0.
         loop_prior_rival: when > 0, a revisit match is declined as ambiguous when the scan,
             fitted locally at the predicted pose
             (:func:`~vslam_gym.slam.scan_matching.local_fit`), ends at a distinct pose (the
@@ -999,6 +1002,7 @@ class FilterConfig:
     loop_cooldown: int = 0
     loop_track_hypotheses: int = 0
     loop_min_innovation: float = 0.0
+    loop_max_correction: float = math.inf
     loop_strong_inlier_fraction: float = 0.8
     loop_strong_max_mahalanobis: float = 12.0
     loop_prior_rival: float = 0.7
@@ -1041,6 +1045,7 @@ class FilterConfig:
                 "observation_model_heading_sigma": "[0, inf]",
                 "creation_heading_model_error": "[0, inf]",
                 "loop_min_innovation": "[0, inf]",
+                "loop_max_correction": "(0, inf]",
                 "loop_strong_max_mahalanobis": "[0, inf]",
                 "candidate_max_near_distance": "[0, inf]",
                 "prune_merge_max_offset": "(0, inf)",

@@ -1005,7 +1005,10 @@ class VertexSLAM:
         found = self._loop.match(points, self._mu[:3], self._gate_covariance(), self._measurements)
         if found is None:
             return False
-        floor = self.config.filter.loop_min_innovation
+        cfg = self.config.filter
+        if float(np.hypot(*(found.pose[:2] - self._mu[:2]))) > cfg.loop_max_correction:
+            return False
+        floor = cfg.loop_min_innovation
         if floor > 0.0:  # the match agrees with the belief: nothing to close
             d = found.pose - self._mu[:3]
             d[2] = wrap_angle(d[2])
