@@ -300,6 +300,30 @@ def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
     assert fused[0] > fused[1] > fused[2] == 0, fused
 
 
+def test_max_correction_declines_matches_far_from_the_belief(monkeypatch):
+    import vslam_gym.slam.loop_closure as lc
+
+    corrections: list[float] = []  # position distance of every revisit match found
+    original = lc.LoopClosure.match
+
+    def recording(self, points, pose, gate_cov, now):
+        found = original(self, points, pose, gate_cov, now)
+        if found is not None:
+            corrections.append(float(np.hypot(*(found.pose[:2] - pose[:2]))))
+        return found
+
+    monkeypatch.setattr(lc.LoopClosure, "match", recording)
+    _, every, _ = _drive(True)
+    largest = max(corrections)
+    _, wide, _ = _drive(True, loop_max_correction=10.0 * largest)
+    _, tight, _ = _drive(True, loop_max_correction=0.5 * largest)
+    _, none, _ = _drive(True, loop_max_correction=1e-9)
+    fused = [sum(b.loop_closed for b in run) for run in (every, wide, tight, none)]
+    assert fused[0] == fused[1] > fused[2] and fused[3] == 0, fused
+    # a limit above every match's correction changes nothing
+    np.testing.assert_array_equal([b.pose for b in every], [b.pose for b in wide])
+
+
 @pytest.mark.parametrize(
     "overrides, match",
     [
@@ -312,6 +336,8 @@ def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
         ({"loop_cooldown": -1}, "loop_cooldown"),
         ({"loop_track_hypotheses": 1.5}, "loop_track_hypotheses"),
         ({"loop_min_innovation": -1.0}, "loop_min_innovation"),
+        ({"loop_max_correction": 0.0}, "loop_max_correction"),
+        ({"loop_max_correction": float("nan")}, "loop_max_correction"),
         ({"loop_sigma_floor": (0.1, -0.1, 0.0)}, "loop_sigma_floor"),
         ({"loop_strong_inlier_fraction": -0.1}, "loop_strong_inlier_fraction"),
         ({"loop_strong_max_mahalanobis": float("nan")}, "loop_strong_max_mahalanobis"),
