@@ -42,6 +42,7 @@ last few finish one at a time.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -742,7 +743,9 @@ def align_many(
     return _align_batch(sets, lines, unknowns, pose0, config, max_range, half_fov, bounds, prior)
 
 
-def _once(checked: dict[int, np.ndarray], value: object, check) -> np.ndarray:
+def _once(
+    checked: dict[int, np.ndarray], value: object, check: Callable[[object], np.ndarray]
+) -> np.ndarray:
     """``check(value)``, computed once per object in ``checked`` (keyed by ``id``).
 
     The caller keeps every value alive while ``checked`` is in use (ids stay unique).
