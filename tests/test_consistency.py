@@ -1,0 +1,30 @@
+"""The pose covariance of the scan-matched motion alone is consistent with its error.
+
+Session 29 traced the default's overconfidence (mean pose NEES 8-132 on the routes) to
+the landmark updates: without landmarks, the scan-matched motion's NEES is about its
+expected 3 (docs/measurements.md, "Session 29"). This guards that half: a change to the
+matcher's covariance or to the motion updates that made the pose overconfident (or far
+too cautious) on its own fails here.
+"""
+
+import numpy as np
+import pytest
+
+from vslam_gym.evaluation import pose_nees, position_ate_rmse, run_episode
+
+NO_LANDMARKS = {"filter": {"min_set_beams": 100_000, "loop_closure": False}}
+"""No set is informative enough to make or update a landmark, and no revisit is fused."""
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_scan_matched_motion_alone_is_consistent_and_landmarks_add_accuracy(seed):
+    alone = run_episode("small", seed, overrides=NO_LANDMARKS, max_steps=150)
+    full = run_episode("small", seed, max_steps=150)
+    assert alone.landmark_counts.max() == 0 and full.landmark_counts.max() > 0
+    nees = pose_nees(alone.slam_poses, alone.slam_covs, alone.true_poses)
+    assert np.isfinite(nees).all()
+    # 3 degrees of freedom: a consistent filter's mean NEES is about 3
+    assert 0.5 < nees.mean() < 4.0, nees.mean()
+    ate_alone = position_ate_rmse(alone.slam_poses, alone.true_poses)
+    ate_full = position_ate_rmse(full.slam_poses, full.true_poses)
+    assert ate_full < ate_alone, (ate_full, ate_alone)
