@@ -889,6 +889,10 @@ class FilterConfig:
             on worlds 1000-1059 0.078 -> 0.075 m, coverage 0.317 -> 0.315, but the
             ``house`` loop stays open in 3 of 20 runs (final error up to 0.29 m), whose
             closing matches move the pose further. ``inf`` by default.
+        repeat_updates: a landmark's update after ``n`` earlier ones observes with its
+            information times ``1 / (1 + n / repeat_updates)`` (0: off, every update at
+            full weight; >= 0): the errors of a landmark's model are shared by all its
+            updates.
         loop_prior_rival: when > 0, a revisit match is declined as ambiguous when the scan,
             fitted locally at the predicted pose
             (:func:`~vslam_gym.slam.scan_matching.local_fit`), ends at a distinct pose (the
@@ -1009,6 +1013,7 @@ class FilterConfig:
     loop_track_hypotheses: int = 0
     loop_min_innovation: float = 0.0
     loop_max_correction: float = math.inf
+    repeat_updates: float = 0.0
     loop_strong_inlier_fraction: float = 0.8
     loop_strong_max_mahalanobis: float = 12.0
     loop_prior_rival: float = 0.7
@@ -1052,6 +1057,7 @@ class FilterConfig:
                 "creation_heading_model_error": "[0, inf]",
                 "loop_min_innovation": "[0, inf]",
                 "loop_max_correction": "(0, inf]",
+                "repeat_updates": "[0, inf)",
                 "loop_strong_max_mahalanobis": "[0, inf]",
                 "candidate_max_near_distance": "[0, inf]",
                 "prune_merge_max_offset": "(0, inf)",

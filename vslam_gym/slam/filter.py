@@ -510,6 +510,7 @@ class _Landmark:
     last_seen: int = 0  # measurement update that last created, associated or updated it
     idle_checked: bool = False  # covered-duplicate test done since it went idle
     heading_sigma: float = 0.0  # orientation model error [rad] of its observations
+    updates: int = 0  # state-space updates it has had (creation not counted)
 
 
 class _MapSnapshot:
@@ -1522,7 +1523,8 @@ class VertexSLAM:
                 k2,
                 upd.A_vx,
                 upd.b_vx,
-                self._observation_information(
+                self._repeat_discount(lm)
+                * self._observation_information(
                     self.config.filter.observation_information_scale * upd.K_obs,
                     upd.A_vx,
                     upd.b_vx,
@@ -1539,6 +1541,7 @@ class VertexSLAM:
         if not self._verified(mu, assoc.pose) or not self._plausible_correction(mu, sigma):
             return "rejected"
         self._mu, self._sigma = mu, sigma
+        lm.updates += 1
         lm.cond = cond
         lm.u = upd.posterior.u.copy()
         lm.closed = upd.posterior.closed
@@ -1574,6 +1577,17 @@ class VertexSLAM:
             c = rotation_columns(vertices, reference)
             extra = heading_sigma**2 * np.outer(c, c)
         return inflated_information(k_obs, cfg.observation_model_sigma, extra)
+
+    def _repeat_discount(self, lm: _Landmark) -> float:
+        """Factor of a landmark update's observation information: ``1 / (1 + n / n0)``.
+
+        ``n``: the landmark's earlier updates, ``n0``: ``FilterConfig.repeat_updates``
+        (0: off, factor 1). The errors a landmark's model carries (the pose it was made
+        at, its model error) are shared by all its updates, so repeated updates of it
+        inform the pose less than independent ones would.
+        """
+        n0 = self.config.filter.repeat_updates
+        return 1.0 if n0 <= 0.0 else 1.0 / (1.0 + lm.updates / n0)
 
     def _orientation_error(self) -> float:
         """The orientation model error [rad] of a landmark created now.
