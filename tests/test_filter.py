@@ -895,3 +895,31 @@ def test_update_max_correction_m2_rejects_corrections_beyond_their_covariance():
     assert SlamConfig().filter.update_max_correction_m2 == 0.0
     with pytest.raises(ValueError, match="update_max_correction_m2"):
         SlamConfig.from_dict({"filter": {"update_max_correction_m2": -1.0}})
+
+
+def test_repeat_updates_discounts_a_landmarks_later_updates(monkeypatch):
+    import vslam_gym.slam.filter as filter_module
+    from vslam_gym.evaluation import run_episode
+
+    seen: list[tuple[int, float]] = []  # (earlier updates, factor) of every update tried
+    original = VertexSLAM._repeat_discount
+
+    def recording(self, lm):
+        factor = original(self, lm)
+        seen.append((lm.updates, factor))
+        return factor
+
+    monkeypatch.setattr(filter_module.VertexSLAM, "_repeat_discount", recording)
+    log = run_episode("small", 0, overrides={"filter": {"repeat_updates": 4}}, max_steps=80)
+    updated = sum(d.outcome == "updated" for d in log.decisions)
+    assert len(seen) >= updated > 0
+    assert max(n for n, _ in seen) >= 4  # landmarks updated again and again
+    for n, factor in seen:
+        assert factor == pytest.approx(1.0 / (1.0 + n / 4))
+    # weaker updates leave the pose less certain than the default's
+    default = run_episode("small", 0, max_steps=80)
+    trace = [np.trace(run.slam_covs[:, :2, :2], axis1=1, axis2=2).mean() for run in (default, log)]
+    assert trace[1] > trace[0], trace
+    assert SlamConfig().filter.repeat_updates == 0.0  # off by default
+    with pytest.raises(ValueError, match="repeat_updates"):
+        SlamConfig.from_dict({"filter": {"repeat_updates": -1.0}})
