@@ -900,7 +900,8 @@ class FilterConfig:
             / 0.134 m, mean pose NEES ``house`` 132 / 148 -> 100 / 96, final error level
             or better; but the ``frontier`` explorer on worlds 1000-1059 maps less
             (coverage 0.317 -> 0.304, lower on 42 of 60 worlds; ATE 0.078 -> 0.076 m).
-            At 5 the ``house`` NEES is 65 but single_landmark's ATE 0.115 m. 0 by
+            At 5 the ``house`` NEES is 65 but single_landmark's ATE 0.115 m; at 50 the
+            explorer maps less too (0.307) and the routes are a little worse. 0 by
             default.
         loop_prior_rival: when > 0, a revisit match is declined as ambiguous when the scan,
             fitted locally at the predicted pose
