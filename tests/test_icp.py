@@ -562,6 +562,23 @@ def test_align_many_equals_align_per_model():
         align_many(points[:2], models, TRUE)
 
 
+def test_align_many_checks_a_set_passed_per_candidate_once(monkeypatch):
+    rng = np.random.default_rng(4)
+    models = [model_of(SHAPES[name]) for name in ("L", "zigzag", "box")]
+    pts = set_points(scan_of(SHAPES["L"], TRUE, rng), TRUE)
+    limits = (SENSOR.max_range, SENSOR.half_fov)
+    cfg = IcpConfig(point_to_line=True)
+    shared = align_many(pts, models, TRUE, cfg, *limits)
+    checked = []
+    original = icp._check_points
+    monkeypatch.setattr(icp, "_check_points", lambda p: checked.append(p) or original(p))
+    per_candidate = align_many([pts, pts, pts.copy()], models, TRUE, cfg, *limits)
+    assert len(checked) == 2  # the object passed twice, and its copy
+    for a, b in zip(shared, per_candidate, strict=True):
+        np.testing.assert_array_equal(a.pose, b.pose)
+        assert (a.reason, a.iterations) == (b.reason, b.iterations)
+
+
 @pytest.mark.parametrize(
     "cfg",
     [

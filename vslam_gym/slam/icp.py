@@ -42,7 +42,6 @@ last few finish one at a time.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -725,9 +724,11 @@ def align_many(
         if len(points) != len(models):
             raise ValueError(f"got {len(points)} point sets for {len(models)} models")
         # A caller passes the same set once per candidate: each object is checked (and
-        # copied) once; the copies are only read.
-        checked: dict[int, np.ndarray] = {}
-        sets = [_once(checked, p, _check_points) for p in points]
+        # copied) once; the copies are only read. ``points`` keeps every object alive,
+        # so their ids are distinct.
+        distinct = {id(p): p for p in points}
+        checked = {key: _check_points(p) for key, p in distinct.items()}
+        sets = [checked[id(p)] for p in points]
     else:
         sets = [_check_points(points)] * len(models)
     pose0 = check_pose(pose)
@@ -741,19 +742,6 @@ def align_many(
     unknowns = [m.u > config.unknown_threshold for m in models]
     prior = _prior_weight(prior_weight)
     return _align_batch(sets, lines, unknowns, pose0, config, max_range, half_fov, bounds, prior)
-
-
-def _once(
-    checked: dict[int, np.ndarray], value: object, check: Callable[[object], np.ndarray]
-) -> np.ndarray:
-    """``check(value)``, computed once per object in ``checked`` (keyed by ``id``).
-
-    The caller keeps every value alive while ``checked`` is in use (ids stay unique).
-    """
-    key = id(value)
-    if key not in checked:
-        checked[key] = check(value)
-    return checked[key]
 
 
 def line_geometry(model: LandmarkModel) -> LineGeometry:
