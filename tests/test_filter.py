@@ -798,6 +798,7 @@ def test_creation_heading_model_error_keeps_a_creation_from_pinning_an_uncertain
                 "filter": {
                     "initial_pose_sigma": [1e-4, 1e-4, 0.05],
                     "creation_heading_model_error": factor,
+                    "error_noise_scale": 0,  # the belief reports the filter's covariance
                 }
             }
         )

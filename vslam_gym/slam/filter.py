@@ -37,6 +37,7 @@ import numpy as np
 from scipy.special import gammaincinv
 
 from vslam_gym.config_utils import check_keys
+from vslam_gym.slam import error_covariance
 from vslam_gym.slam.config import FilterConfig, ModelConfig, SensorConfig
 from vslam_gym.slam.creation import create_model, several_groups
 from vslam_gym.slam.creation import point_covariances as _point_covariances
@@ -398,7 +399,7 @@ class LandmarkView:
     Attributes:
         id: stable landmark id (creation order).
         reference: ``(2,)`` reference point mean [m].
-        reference_cov: ``(2, 2)`` its covariance [m^2].
+        reference_cov: ``(2, 2)`` its covariance [m^2] (as ``Belief.pose_cov``).
         model: the vertex model: means, covariance given the reference, ``u``, closed.
         object_vertices: ``(start, stop)``: ``model.mean[start:stop]`` are object
             vertices, the others end vertices of unknown lines.
@@ -455,7 +456,8 @@ class Belief:
     Attributes:
         step: number of steps taken.
         pose: ``(3,)`` lidar pose mean ``[x, y, theta]`` (world frame).
-        pose_cov: ``(3, 3)`` its covariance.
+        pose_cov: ``(3, 3)`` its covariance (with ``FilterConfig.error_noise_scale`` the
+            covariance of the estimation error, :mod:`vslam_gym.slam.error_covariance`).
         robot_pose: ``(3,)`` robot pose mean (through the lidar offset).
         landmarks: every landmark.
         decisions: one per measurement set of the last scan.
@@ -683,6 +685,8 @@ class VertexSLAM:
             raise ValueError(f"initial_pose must be 3 finite numbers, got {initial_pose!r}")
         self._mu = compose(pose, self._offset)
         self._sigma = np.diag(np.asarray(self.config.filter.initial_pose_sigma) ** 2)
+        # FilterConfig.error_noise_scale: the covariance of the estimation error (None: off)
+        self._error = self._sigma.copy() if self.config.filter.error_noise_scale > 0 else None
         self._landmarks: list[_Landmark] = []
         self._snapshot = _MapSnapshot(self._ref_dim)
         self._next_id = 0
@@ -698,6 +702,7 @@ class VertexSLAM:
         # pose, covariance) and the state's pose mean and pose rows then; None: no step
         # since the last match.
         self._pending: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._pending_error: np.ndarray | None = None  # the error covariance's pose rows then
         self._normals: tuple[np.ndarray, np.ndarray] | None = None  # the step's scan normals
         self._loop = self._make_loop_closure()
         self._loop_closed = False
@@ -725,7 +730,7 @@ class VertexSLAM:
         return Belief(
             step=self._step,
             pose=pose,
-            pose_cov=self._sigma[:3, :3].copy(),
+            pose_cov=self._reported[:3, :3].copy(),
             robot_pose=compose(pose, inverse(self._offset)),
             landmarks=self._views,
             decisions=self._decisions,
@@ -738,12 +743,17 @@ class VertexSLAM:
             step_ms_parts=dict(self._step_ms_parts),
         )
 
+    @property
+    def _reported(self) -> np.ndarray:
+        """The covariance the belief reports: the error covariance, else the filter's."""
+        return self._sigma if self._error is None else self._error
+
     def _landmark_view(self, lm: _Landmark) -> LandmarkView:
         r = slice(lm.ref, lm.ref + REF_DIM)  # the point (a landmark frame's origin)
         return LandmarkView(
             id=lm.id,
             reference=self._mu[r].copy(),
-            reference_cov=self._sigma[r, r].copy(),
+            reference_cov=self._reported[r, r].copy(),
             model=_model_copy(self._model(lm)),
             object_vertices=lm.object_vertices,
         )
@@ -869,9 +879,10 @@ class VertexSLAM:
         return odometry_noise(u, cfg.odometry_alphas, np.asarray(cfg.odometry_sigma_floor))
 
     def _motion_update(self, u: np.ndarray) -> None:
-        self._mu, self._sigma = motion_update(
-            self._mu, self._sigma, self._lidar_increments(u), self._odometry_noise(u)
-        )
+        lidar_u, noise = self._lidar_increments(u), self._odometry_noise(u)
+        if self._error is not None:  # affine in the covariance: the same update
+            self._error = motion_update(self._mu, self._error, lidar_u, noise)[1]
+        self._mu, self._sigma = motion_update(self._mu, self._sigma, lidar_u, noise)
 
     # ------------------------------------------------------------------ prealignment
 
@@ -902,6 +913,7 @@ class VertexSLAM:
         if self._pending is None:  # the first step since the last match
             rows = (self._mu[:3].copy(), self._sigma[:3].copy())
             self._pending = (np.zeros(3), np.zeros((3, 3)), *rows)
+            self._pending_error = None if self._error is None else self._error[:3].copy()
         since, since_cov, pose, pose_rows = self._pending
         lidar_u, noise = self._lidar_increments(u), self._odometry_noise(u)
         delta, cov = increment_to_relative(lidar_u, noise)
@@ -910,14 +922,17 @@ class VertexSLAM:
         # the mean the odometry's motion update would give (motion_update's own)
         if not self._moved_enough(predict_pose(self._mu[:3], lidar_u)):
             self._pending = (since, since_cov, pose, pose_rows)
+            if self._error is not None:
+                self._error = motion_update(self._mu, self._error, lidar_u, noise)[1]
             self._mu, self._sigma = motion_update(self._mu, self._sigma, lidar_u, noise)
             return False
         # a measuring step: its odometry update would be replaced at once, so the state
         # goes straight back to the pose rows after the last measurement update
-        mu, sigma = self._mu.copy(), self._sigma.copy()
-        mu[:3], sigma[:3] = pose, pose_rows
-        sigma[:, :3] = pose_rows.T
-        self._mu, self._sigma, self._pending = mu, sigma, None
+        mu = self._mu.copy()
+        mu[:3] = pose
+        if self._error is not None:
+            self._error = _with_pose_rows(self._error, self._pending_error)
+        self._mu, self._sigma, self._pending = mu, _with_pose_rows(self._sigma, pose_rows), None
         self._prealigned = self._matched_relative_update(since, since_cov, points)
         return True
 
@@ -945,6 +960,8 @@ class VertexSLAM:
         if result is not None:
             delta = compose(inverse(self._matcher_pose), result.pose)
             cov = to_map.T @ result.cov @ to_map
+        if self._error is not None:
+            self._error = relative_motion_update(self._mu, self._error, delta, cov)[1]
         self._mu, self._sigma = relative_motion_update(self._mu, self._sigma, delta, cov)
         self._matcher_pose = compose(self._matcher_pose, delta)
         if self._local_map.is_keyframe(self._matcher_pose):
@@ -967,9 +984,10 @@ class VertexSLAM:
             )
             if result is None:
                 return False
-            self._mu, self._sigma = pose_measurement_update(
-                self._mu, self._sigma, result.pose, result.cov
-            )
+            mu, sigma = pose_measurement_update(self._mu, self._sigma, result.pose, result.cov)
+            if self._error is not None:
+                self._error = error_covariance.pose_update(self._error, self._sigma, result.cov)
+            self._mu, self._sigma = mu, sigma
         except (ValueError, np.linalg.LinAlgError):  # degenerate numbers: not fused
             return False
         return True
@@ -1026,6 +1044,8 @@ class VertexSLAM:
         spread = self.config.filter.loop_correct_keyframes
         if spread != "none":  # the keyframes take a share of the pose's correction
             self._loop.correct_keyframes(self._mu[:3], mu[:3], spread, self._sigma[:3, :3])
+        if self._error is not None:
+            self._error = error_covariance.pose_update(self._error, self._sigma, found.cov)
         self._mu, self._sigma = mu, sigma
         self._loop.fused(self._measurements)
         return True
@@ -1514,23 +1534,15 @@ class VertexSLAM:
             prior = lm.cond.relinearized(self._mu[lm.ref : lm.ref + self._ref_dim])
             a2, b2 = f.T @ prior.A, f.T @ prior.b
             k2 = f.T @ prior.K @ f
-            mu, sigma, cond = state_space_update(
-                self._mu,
-                self._sigma,
-                lm.ref,
-                a2,
-                b2,
-                k2,
+            k3 = self._repeat_discount(lm) * self._observation_information(
+                self.config.filter.observation_information_scale * upd.K_obs,
                 upd.A_vx,
                 upd.b_vx,
-                self._repeat_discount(lm)
-                * self._observation_information(
-                    self.config.filter.observation_information_scale * upd.K_obs,
-                    upd.A_vx,
-                    upd.b_vx,
-                    self._mu[lm.ref : lm.ref + REF_DIM],
-                    lm.heading_sigma,
-                ),
+                self._mu[lm.ref : lm.ref + REF_DIM],
+                lm.heading_sigma,
+            )
+            mu, sigma, cond, lam = state_space_update(
+                self._mu, self._sigma, lm.ref, a2, b2, k2, upd.A_vx, upd.b_vx, k3, with_factor=True
             )
         except (ValueError, np.linalg.LinAlgError):  # UpdateError, degenerate geometry, ...
             return "failed"
@@ -1540,6 +1552,11 @@ class VertexSLAM:
             return "failed"
         if not self._verified(mu, assoc.pose) or not self._plausible_correction(mu, sigma):
             return "rejected"
+        if self._error is not None:
+            idx = np.r_[0:POSE_DIM, lm.ref : lm.ref + self._ref_dim]
+            self._error = error_covariance.factor_update(
+                self._error, self._sigma, idx, lam, self.config.filter.error_noise_scale
+            )
         self._mu, self._sigma = mu, sigma
         lm.updates += 1
         lm.cond = cond
@@ -1729,6 +1746,7 @@ class VertexSLAM:
         for i in range(start, stop):  # r = mean of the object vertices (4.3.58)
             select[:REF_DIM, 2 * i : 2 * i + 2] = np.eye(2) / (stop - start)
         heading_sigma = self._orientation_error()
+        scale = self.config.filter.error_noise_scale
         select_pose = None
         if d == POSE_REF_DIM:  # a landmark frame starts at the pose heading
             select_pose = np.zeros((d, POSE_DIM))
@@ -1748,10 +1766,23 @@ class VertexSLAM:
                 k3 = self._observation_information(
                     k_v, fit.A_vx, fit.b_vx, mu_r[:REF_DIM], heading_sigma
                 )
-                mu, sigma, cond = state_space_update(
-                    self._mu, self._sigma, None, a2, b2, k_v, fit.A_vx, fit.b_vx, k3
+                mu, sigma, cond, lam = state_space_update(
+                    self._mu,
+                    self._sigma,
+                    None,
+                    a2,
+                    b2,
+                    k_v,
+                    fit.A_vx,
+                    fit.b_vx,
+                    k3,
+                    with_factor=True,
                 )
+                error = self._error
+                if error is not None:
+                    error = error_covariance.add_landmark(error, self._sigma, lam, scale)
             else:
+                ref_sigma = self.config.filter.reference_heading_sigma
                 mu, sigma, cond = augment_landmark(
                     self._mu,
                     self._sigma,
@@ -1761,12 +1792,25 @@ class VertexSLAM:
                     select,
                     self.config.filter.shape_sigma,
                     select_pose,
-                    self.config.filter.reference_heading_sigma,
+                    ref_sigma,
                 )
+                error = self._error
+                if error is not None:  # affine in the covariance; the noise scaled
+                    error = augment_landmark(
+                        self._mu,
+                        error,
+                        fit.A_vx,
+                        fit.b_vx,
+                        scale * model.cov,
+                        select,
+                        self.config.filter.shape_sigma,
+                        select_pose,
+                        math.sqrt(scale) * ref_sigma,
+                    )[1]
             cond.covariance()  # p(v | r) must be proper before anything is committed
         except (ValueError, np.linalg.LinAlgError):  # NotPositiveDefiniteError included
             return None
-        self._mu, self._sigma = mu, sigma
+        self._mu, self._sigma, self._error = mu, sigma, error
         lm = _Landmark(
             id=self._next_id,
             ref=mu.size - d,
@@ -1919,6 +1963,8 @@ class VertexSLAM:
         if not float(white @ white) <= 2.0 * gammaincinv(0.5 * k, cfg.prune_merge_probability):
             return False
         gain = np.linalg.solve(s, ph.T).T  # (n, k)
+        if self._error is not None:
+            self._error = error_covariance.direct_update(self._error, self._sigma, h, noise)
         self._mu = self._mu + gain @ nu
         self._sigma = symmetrize(self._sigma - gain @ s @ gain.T)
         return True
@@ -1941,6 +1987,8 @@ class VertexSLAM:
         keep = np.setdiff1d(np.arange(self._mu.size), rows)
         self._mu = self._mu[keep]
         self._sigma = self._sigma[np.ix_(keep, keep)]
+        if self._error is not None:
+            self._error = self._error[np.ix_(keep, keep)]
         self._snapshot.delete(positions)
         self._landmarks = [lm for lm in self._landmarks if lm.id not in ids]
         for k, lm in enumerate(self._landmarks):
@@ -1997,6 +2045,14 @@ class VertexSLAM:
         if lm.parts is None:
             lm.parts = model_parts(self._detection_model(lm))
         return lm.parts
+
+
+def _with_pose_rows(cov: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """A copy of the state covariance ``cov`` with its pose rows and columns ``rows`` (3, n)."""
+    out = cov.copy()
+    out[:3] = rows
+    out[:, :3] = rows.T
+    return out
 
 
 def _model_copy(model: LandmarkModel) -> LandmarkModel:

@@ -325,7 +325,12 @@ def state_space_update(
     a3: np.ndarray,
     b3: np.ndarray,
     k3: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, LandmarkConditional]:
+    *,
+    with_factor: bool = False,
+) -> (
+    tuple[np.ndarray, np.ndarray, LandmarkConditional]
+    | tuple[np.ndarray, np.ndarray, LandmarkConditional, np.ndarray]
+):
     """Update the belief with one landmark's observation (SPEC section 10 item 3).
 
     Args:
@@ -337,9 +342,13 @@ def state_space_update(
             ``(2k, 2k)``; ``d`` the reference size, 2 or 3).
         a3, b3, k3: ``Phi3 = p(v | x, z)`` (``(2k, 3)``, ``(2k,)``, ``(2k, 2k)``); ``k3``
             may be singular (unobserved vertices carry no information).
+        with_factor: also return ``Lambda`` ``(3 + d, 3 + d)``, the information of the
+            factor ``Phi2 Phi3`` with ``v`` marginalised, on ``(x, r)``
+            (:mod:`vslam_gym.slam.error_covariance` applies its gain).
 
     Returns:
-        ``(mu', Sigma', p(v | r))``; the state grows by ``d`` for a new landmark.
+        ``(mu', Sigma', p(v | r))``, and ``Lambda`` with ``with_factor``; the state grows
+        by ``d`` for a new landmark.
 
     Raises:
         NotPositiveDefiniteError: ``k2 + k3`` or the result is not positive definite.
@@ -394,4 +403,6 @@ def state_space_update(
         sigma_new[:n, n:] = cross.T
         sigma_new[n:, n:] = symmetrize(c_mat @ sigma_x[:3, :3] @ c_mat.T + e_cov)
         cholesky(sigma_x[:3, :3], "state covariance after the landmark update")
+    if with_factor:
+        return mu_new, sigma_new, conditional, lam
     return mu_new, sigma_new, conditional

@@ -1,0 +1,93 @@
+"""The error covariance of the filter's estimates (``FilterConfig.error_noise_scale``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_state_update import make_case, random_spd
+
+from vslam_gym.evaluation import run_episode
+from vslam_gym.slam import error_covariance as ec
+from vslam_gym.slam.config import FilterConfig
+from vslam_gym.slam.state_update import pose_measurement_update, state_space_update
+
+FILTER_OWN = {"filter": {"error_noise_scale": 0}}
+"""The belief reports the filter's own covariance (the ``thesis`` preset's way)."""
+
+
+@pytest.mark.parametrize("seed, d", [(0, 2), (1, 2), (6, 3)])
+def test_factor_update_at_scale_one_is_the_filters_landmark_update(seed, d):
+    rng = np.random.default_rng(seed)
+    mu, sigma, a2, b2, k2, a3, b3, k3 = make_case(rng, d=d)
+    ref = mu.size - d
+    _, want, _, lam = state_space_update(mu, sigma, ref, a2, b2, k2, a3, b3, k3, with_factor=True)
+    idx = np.r_[0:3, ref : ref + d]
+    got = ec.factor_update(sigma, sigma, idx, lam, 1.0)
+    np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed, d", [(3, 2), (8, 3)])
+def test_add_landmark_at_scale_one_is_the_filters_creation(seed, d):
+    rng = np.random.default_rng(seed)
+    mu, sigma, a2, b2, k2, a3, b3, k3 = make_case(rng, new=True, d=d)
+    _, want, _, lam = state_space_update(mu, sigma, None, a2, b2, k2, a3, b3, k3, with_factor=True)
+    got = ec.add_landmark(sigma, sigma, lam, 1.0)
+    assert got.shape == want.shape == (mu.size + d,) * 2
+    np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-12)
+
+
+def test_pose_and_direct_updates_at_scale_one_are_the_kalman_updates():
+    rng = np.random.default_rng(4)
+    n = 9
+    mu, sigma = rng.normal(size=n), random_spd(rng, n, 0.01)
+    noise = random_spd(rng, 3, 0.001)
+    _, want = pose_measurement_update(mu, sigma, mu[:3] + 0.01, noise)
+    np.testing.assert_allclose(ec.pose_update(sigma, sigma, noise), want, rtol=1e-8, atol=1e-14)
+    h = rng.normal(size=(2, n))
+    r = random_spd(rng, 2, 0.001)
+    gain = sigma @ h.T @ np.linalg.inv(h @ sigma @ h.T + r)
+    want = sigma - gain @ h @ sigma
+    np.testing.assert_allclose(ec.direct_update(sigma, sigma, h, r), want, rtol=1e-8, atol=1e-14)
+
+
+def test_factor_update_is_the_joseph_form_with_the_noise_scaled():
+    """One variable: gain ``k = s / (s + r)``, ``P' = (1 - k)^2 P + c k^2 r``."""
+    s, r, p, c = 0.04, 0.01, 0.09, 7.0
+    got = ec.factor_update(np.array([[p]]), np.array([[s]]), np.arange(1), np.array([[1 / r]]), c)
+    k = s / (s + r)
+    assert got[0, 0] == pytest.approx((1 - k) ** 2 * p + c * k**2 * r, rel=1e-12)
+
+
+def test_error_noise_scale_keeps_the_estimates_and_widens_the_reported_covariance():
+    """The option changes what the belief reports, never the estimates; with a scale
+    above 1 the reported covariance is never smaller than the filter's (Loewner order),
+    and it stays symmetric positive definite."""
+    plain = run_episode("small", 0, max_steps=120, overrides=FILTER_OWN)
+    wide = run_episode("small", 0, max_steps=120)  # the default: error_noise_scale 10
+    np.testing.assert_array_equal(wide.slam_poses, plain.slam_poses)
+    np.testing.assert_array_equal(wide.landmark_counts, plain.landmark_counts)
+    assert plain.landmark_counts.max() > 0
+    for cov, base in zip(wide.slam_covs, plain.slam_covs, strict=True):
+        np.testing.assert_allclose(cov, cov.T, atol=1e-15)
+        assert np.linalg.eigvalsh(cov)[0] > 0
+        assert np.linalg.eigvalsh(cov - base)[0] > -1e-12 * np.abs(base).max()
+    final_ratio = np.trace(wide.slam_covs[-1][:2, :2]) / np.trace(plain.slam_covs[-1][:2, :2])
+    assert final_ratio > 2.0, final_ratio
+
+
+def test_error_noise_scale_at_one_reports_the_filters_covariance():
+    plain = run_episode("small", 1, max_steps=80, overrides=FILTER_OWN)
+    same = run_episode("small", 1, max_steps=80, overrides={"filter": {"error_noise_scale": 1}})
+    np.testing.assert_array_equal(same.slam_poses, plain.slam_poses)
+    np.testing.assert_allclose(same.slam_covs, plain.slam_covs, rtol=1e-9, atol=1e-15)
+
+
+@pytest.mark.parametrize("value", [-1.0, float("nan"), float("inf")])
+def test_error_noise_scale_is_validated(value):
+    with pytest.raises(ValueError, match="error_noise_scale"):
+        FilterConfig(error_noise_scale=value)
+
+
+def test_error_noise_scale_defaults():
+    assert FilterConfig().error_noise_scale == 10.0
+    assert FilterConfig.thesis().error_noise_scale == 0.0

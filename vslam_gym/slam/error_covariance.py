@@ -1,0 +1,131 @@
+"""The error covariance of the filter's estimates under shared model errors (an option).
+
+The filter's gains treat the model errors of every landmark update as independent of
+the state's errors. They are not: two updates of one landmark from viewpoints a step
+apart carry nearly the same model error, so the filter counts that error's information
+once per update, and its covariance ends up far smaller than its errors (session 29:
+the scan-matched motion alone is consistent, the landmark updates are not). This module
+keeps, beside the filter's covariance ``Sigma``, the covariance ``P`` of its estimation
+error: the same linear(ised) updates with the filter's own gains, in Joseph form, but
+with the noise of every landmark factor (update and creation) multiplied by a scale
+``c`` (``FilterConfig.error_noise_scale``): the usual stand-in for correlated noise
+(successive errors with correlation ``rho`` weigh like independent ones with
+``(1 + rho) / (1 - rho)`` times their variance; ``rho`` about 0.8 between updates
+0.15 m apart gives about 10).
+
+For a gain ``K`` and a measurement ``y = H s + n`` with noise ``R``,
+``P' = (I - K H) P (I - K H)^T + c K R K^T``; with ``P = Sigma`` and ``c = 1`` this is the
+filter's own update (tested). The estimates never depend on ``P``: the means, gains and
+gates are the filter's, only what the belief reports changes.
+
+A landmark factor ``C(Lambda, eta)`` on the pose and reference ``s`` (``v`` marginalised;
+``state_space_update(..., with_factor=True)`` returns ``Lambda``) is a measurement of ``s`` with
+noise ``Lambda^-1`` (on its range): the filter's gain is ``K = Sigma_:s M`` with
+``M = Lambda (I + Sigma_ss Lambda)^-1``, and ``K R K^T = Sigma_:s M^T (I - Sigma_ss M)
+Sigma_s:`` needs no inverse of ``Lambda``.
+
+Frames and units: the filter's state ``[x; r_0; ...]`` (pose [m, m, rad], references
+[m] or landmark frames [m, m, rad]). Pure numpy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vslam_gym.slam.gaussian import symmetrize
+from vslam_gym.slam.state_update import POSE_DIM
+
+__all__ = ["add_landmark", "direct_update", "factor_update", "joseph", "pose_update"]
+
+
+def joseph(
+    p: np.ndarray, gain: np.ndarray, hp: np.ndarray, hph: np.ndarray, gain_noise: np.ndarray
+) -> np.ndarray:
+    """``(I - K H) P (I - K H)^T + K R' K^T`` from its pieces.
+
+    Args:
+        p: ``(n, n)`` the error covariance before the update.
+        gain: ``(n, k)`` the filter's gain ``K``.
+        hp: ``(k, n)`` ``H P``.
+        hph: ``(k, k)`` ``H P H^T``.
+        gain_noise: ``(n, n)`` ``K R' K^T``, the (scaled) noise through the gain.
+    """
+    khp = gain @ hp
+    out = p - khp
+    out -= khp.T
+    out += gain @ hph @ gain.T
+    out += gain_noise
+    return symmetrize(out)
+
+
+def factor_update(
+    p: np.ndarray, sigma: np.ndarray, idx: np.ndarray, lam: np.ndarray, scale: float
+) -> np.ndarray:
+    """``P`` after the filter multiplied ``Sigma`` by the factor ``C(lam, .)`` on ``idx``.
+
+    With ``G = Sigma_:s``, ``K = G M``, ``B = P_s:`` and ``Q = M B``, the Joseph form is
+    ``P + G X G^T - G Q - Q^T G^T`` with ``X = M P_ss M^T + c M^T (I - Sigma_ss M)``: one
+    rank-``2s`` product ``[G, Q^T] [[X, -I], [-I, 0]] [G, Q^T]^T``, ``O(s n^2)``.
+
+    Args:
+        p: ``(n, n)`` the error covariance before the update.
+        sigma: ``(n, n)`` the filter's covariance before the update (its gain).
+        idx: ``(s,)`` the state indices the factor is on (pose, reference).
+        lam: ``(s, s)`` the factor's information (positive semi-definite).
+        scale: the factor's noise scale ``c`` (>= 0).
+    """
+    k = idx.size
+    g = sigma[:, idx]
+    s_ss = g[idx]
+    eye = np.eye(k)
+    m = lam @ np.linalg.inv(eye + s_ss @ lam)
+    x = m @ p[idx[:, None], idx] @ m.T + scale * (m.T @ (eye - s_ss @ m))
+    v = np.empty((p.shape[0], 2 * k))
+    v[:, :k] = g
+    v[:, k:] = (m @ p[idx]).T
+    w = np.zeros((2 * k, 2 * k))
+    w[:k, :k] = x
+    w[:k, k:] = w[k:, :k] = -eye
+    return symmetrize(p + v @ (w @ v.T))
+
+
+def direct_update(
+    p: np.ndarray, sigma: np.ndarray, h: np.ndarray, noise: np.ndarray, scale: float = 1.0
+) -> np.ndarray:
+    """``P`` after the filter's EKF update with ``y = H s + n``, ``n ~ N(0, noise)``.
+
+    ``h`` ``(k, n)``, ``noise`` ``(k, k)`` positive definite; the gain is the filter's,
+    ``Sigma H^T (H Sigma H^T + noise)^-1``.
+    """
+    ph = sigma @ h.T
+    gain = np.linalg.solve(h @ ph + noise, ph.T).T
+    return joseph(p, gain, h @ p, h @ p @ h.T, scale * (gain @ noise @ gain.T))
+
+
+def pose_update(p: np.ndarray, sigma: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """``P`` after a direct measurement of the pose (``H = [I_3, 0]``) with ``noise``."""
+    gain = np.linalg.solve(sigma[:POSE_DIM, :POSE_DIM] + noise, sigma[:POSE_DIM]).T
+    return joseph(p, gain, p[:POSE_DIM], p[:POSE_DIM, :POSE_DIM], gain @ noise @ gain.T)
+
+
+def add_landmark(p: np.ndarray, sigma: np.ndarray, lam: np.ndarray, scale: float) -> np.ndarray:
+    """``P`` after the thesis's creation (a factor on the pose and a new reference).
+
+    As :func:`~vslam_gym.slam.state_update.state_space_update` with no prior on the
+    reference: the factor ``lam`` ``(3 + d, 3 + d)`` splits into a pose factor and
+    ``r = C x + c + e``, ``e ~ N(0, lam_rr^-1)``; the pose is updated with the first, and
+    ``r`` is appended with its error ``C e_x + e`` (``e`` scaled too).
+    """
+    lam_rr = lam[POSE_DIM:, POSE_DIM:]
+    c_mat = -np.linalg.solve(lam_rr, lam[POSE_DIM:, :POSE_DIM])
+    e_cov = np.linalg.inv(lam_rr)
+    lam_x = symmetrize(lam[:POSE_DIM, :POSE_DIM] + lam[:POSE_DIM, POSE_DIM:] @ c_mat)
+    px = factor_update(p, sigma, np.arange(POSE_DIM), lam_x, scale)
+    n, d = p.shape[0], lam_rr.shape[0]
+    out = np.zeros((n + d, n + d))
+    out[:n, :n] = px
+    cross = c_mat @ px[:POSE_DIM]
+    out[n:, :n] = cross
+    out[:n, n:] = cross.T
+    out[n:, n:] = symmetrize(c_mat @ px[:POSE_DIM, :POSE_DIM] @ c_mat.T + scale * e_cov)
+    return out
