@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from test_state_update import make_case, random_spd
 
-from vslam_gym.evaluation import run_episode
+from vslam_gym.evaluation import episode_metrics, run_episode
 from vslam_gym.slam import error_covariance as ec
 from vslam_gym.slam.config import FilterConfig
 from vslam_gym.slam.state_update import pose_measurement_update, state_space_update
@@ -91,3 +91,14 @@ def test_error_noise_scale_is_validated(value):
 def test_error_noise_scale_defaults():
     assert FilterConfig().error_noise_scale == 10.0
     assert FilterConfig.thesis().error_noise_scale == 0.0
+
+
+def test_the_belief_and_the_metrics_keep_the_filters_own_covariance_too():
+    own = run_episode("small", 2, max_steps=60, overrides=FILTER_OWN)
+    default = run_episode("small", 2, max_steps=60)
+    np.testing.assert_array_equal(default.filter_covs, own.slam_covs)
+    np.testing.assert_array_equal(own.filter_covs, own.slam_covs)
+    assert default.final_belief.filter_pose_cov.shape == (3, 3)
+    m_own, m_default = episode_metrics(own), episode_metrics(default)
+    assert m_default["filter_nees_mean"] == m_own["nees_mean"] == m_own["filter_nees_mean"]
+    assert m_default["nees_mean"] < m_default["filter_nees_mean"]

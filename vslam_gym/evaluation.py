@@ -198,7 +198,11 @@ class EpisodeLog:
         odometry_poses: ``(T + 1, 3)`` poses integrated from the noisy odometry.
         slam_poses: ``(T + 1, 3)`` SLAM robot pose means.
         slam_covs: ``(T + 1, 3, 3)`` SLAM pose covariances [m^2, m rad, rad^2] (the lidar
-            sits at the robot centre in simulation, so lidar and robot pose coincide).
+            sits at the robot centre in simulation, so lidar and robot pose coincide):
+            ``Belief.pose_cov``.
+        filter_covs: ``(T + 1, 3, 3)`` the filter's own pose covariances
+            (``Belief.filter_pose_cov``; the same as ``slam_covs`` when
+            ``FilterConfig.error_noise_scale`` is 0), or None.
         step_ms: ``(T,)`` filter wall time per step [ms] (``Belief.step_ms``).
         measured: ``(T,)`` bool, the step ran the measurement update (``Belief.measured``;
             a motion filter skips it on the others).
@@ -234,6 +238,7 @@ class EpisodeLog:
     wall_s: float = 0.0
     loop_closures: int = 0
     surface_hits: np.ndarray | None = None
+    filter_covs: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -336,6 +341,7 @@ def run_episode(
     follower = RouteFollower(env.world.route)
     true_poses, odom_poses = [info["pose"]], [info["odom_pose"]]
     slam_poses, slam_covs = [belief.robot_pose], [belief.pose_cov]
+    filter_covs = [belief.filter_pose_cov]
     step_ms, measured, counts, collisions = [], [], [len(belief.landmarks)], []
     decisions: list[DecisionRecord] = []
     loop_closures = 0
@@ -353,6 +359,7 @@ def run_episode(
             odom_poses.append(info["odom_pose"])
             slam_poses.append(belief.robot_pose)
             slam_covs.append(belief.pose_cov)
+            filter_covs.append(belief.filter_pose_cov)
             step_ms.append(belief.step_ms)
             measured.append(belief.measured)
             counts.append(len(belief.landmarks))
@@ -395,6 +402,7 @@ def run_episode(
         odometry_poses=np.array(odom_poses, dtype=float),
         slam_poses=np.array(slam_poses, dtype=float),
         slam_covs=np.array(slam_covs, dtype=float),
+        filter_covs=np.array(filter_covs, dtype=float),
         step_ms=np.array(step_ms, dtype=float),
         measured=np.array(measured, dtype=bool),
         landmark_counts=np.array(counts, dtype=int),
@@ -774,6 +782,8 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     ``final_error_m`` / ``odom_final_error_m`` [m]; ``nees_*`` (:func:`nees_summary`);
     ``odom_nees_mean`` and ``odom_nees_in_band_fraction`` (the same for dead reckoning
     with the filter's motion model, :func:`odometry_covariances`);
+    ``filter_nees_mean`` and ``filter_nees_in_band_fraction`` (the same with the
+    filter's own covariance, ``EpisodeLog.filter_covs``; NaN when not recorded);
     ``association_precision`` and ``associations``; ``update_precision`` and
     ``updates`` (the same over the associations that updated the map: an
     ``"associated"`` set, matched with too few beams on object lines to update, often
@@ -841,6 +851,13 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     )
     out["odom_nees_mean"] = odom_nees["nees_mean"]
     out["odom_nees_in_band_fraction"] = odom_nees["nees_in_band_fraction"]
+    own = nees_summary(
+        pose_nees(est, log.filter_covs[1:], true)
+        if log.filter_covs is not None
+        else np.full(len(est), np.nan)
+    )
+    out["filter_nees_mean"] = own["nees_mean"]
+    out["filter_nees_in_band_fraction"] = own["nees_in_band_fraction"]
     out.update(
         {
             "association_precision": precision,

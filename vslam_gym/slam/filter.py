@@ -477,6 +477,9 @@ class Belief:
             ``"landmarks"`` (association, landmark updates and creation, pruning, the
             revisit keyframe); a part that did not run is 0. They add up to
             ``step_ms`` up to the bookkeeping between them.
+        filter_pose_cov: ``(3, 3)`` the filter's own pose covariance, the one its gains
+            and gates use (``pose_cov`` itself when ``error_noise_scale`` is 0); None
+            when not given.
     """
 
     step: int
@@ -492,6 +495,7 @@ class Belief:
     pruned: tuple[int, ...] = ()
     loop_closed: bool = False
     step_ms_parts: Mapping[str, float] = field(default_factory=dict)
+    filter_pose_cov: np.ndarray | None = None
 
 
 @dataclass
@@ -741,6 +745,7 @@ class VertexSLAM:
             pruned=self._pruned,
             loop_closed=self._loop_closed,
             step_ms_parts=dict(self._step_ms_parts),
+            filter_pose_cov=self._sigma[:3, :3].copy(),
         )
 
     @property
