@@ -35,29 +35,9 @@ from __future__ import annotations
 import numpy as np
 
 from vslam_gym.slam.gaussian import symmetrize
-from vslam_gym.slam.state_update import POSE_DIM
+from vslam_gym.slam.state_update import POSE_DIM, append_reference, reference_given_pose
 
-__all__ = ["add_landmark", "direct_update", "factor_update", "joseph", "pose_update"]
-
-
-def joseph(
-    p: np.ndarray, gain: np.ndarray, hp: np.ndarray, hph: np.ndarray, gain_noise: np.ndarray
-) -> np.ndarray:
-    """``(I - K H) P (I - K H)^T + K R' K^T`` from its pieces.
-
-    Args:
-        p: ``(n, n)`` the error covariance before the update.
-        gain: ``(n, k)`` the filter's gain ``K``.
-        hp: ``(k, n)`` ``H P``.
-        hph: ``(k, k)`` ``H P H^T``.
-        gain_noise: ``(n, n)`` ``K R' K^T``, the (scaled) noise through the gain.
-    """
-    khp = gain @ hp
-    out = p - khp
-    out -= khp.T
-    out += gain @ hph @ gain.T
-    out += gain_noise
-    return symmetrize(out)
+__all__ = ["add_landmark", "direct_update", "factor_update", "pose_update"]
 
 
 def factor_update(
@@ -97,17 +77,22 @@ def direct_update(
     """``P`` after the filter's EKF update with ``y = H s + n``, ``n ~ N(0, noise)``.
 
     ``h`` ``(k, n)``, ``noise`` ``(k, k)`` positive definite; the gain is the filter's,
-    ``Sigma H^T (H Sigma H^T + noise)^-1``.
+    ``K = Sigma H^T (H Sigma H^T + noise)^-1``, and
+    ``P' = P - K H P - (K H P)^T + K (H P H^T + c noise) K^T``.
     """
     ph = sigma @ h.T
     gain = np.linalg.solve(h @ ph + noise, ph.T).T
-    return joseph(p, gain, h @ p, h @ p @ h.T, scale * (gain @ noise @ gain.T))
+    hp = h @ p
+    khp = gain @ hp
+    return symmetrize(p - khp - khp.T + gain @ (hp @ h.T + scale * noise) @ gain.T)
 
 
 def pose_update(p: np.ndarray, sigma: np.ndarray, noise: np.ndarray) -> np.ndarray:
-    """``P`` after a direct measurement of the pose (``H = [I_3, 0]``) with ``noise``."""
-    gain = np.linalg.solve(sigma[:POSE_DIM, :POSE_DIM] + noise, sigma[:POSE_DIM]).T
-    return joseph(p, gain, p[:POSE_DIM], p[:POSE_DIM, :POSE_DIM], gain @ noise @ gain.T)
+    """``P`` after a direct measurement of the pose (``H = [I_3, 0]``) with ``noise``.
+
+    The factor ``noise^-1`` on the pose, at its own noise (:func:`factor_update`).
+    """
+    return factor_update(p, sigma, np.arange(POSE_DIM), np.linalg.inv(noise), 1.0)
 
 
 def add_landmark(p: np.ndarray, sigma: np.ndarray, lam: np.ndarray, scale: float) -> np.ndarray:
@@ -115,19 +100,10 @@ def add_landmark(p: np.ndarray, sigma: np.ndarray, lam: np.ndarray, scale: float
 
     As :func:`~vslam_gym.slam.state_update.state_space_update` with no prior on the
     reference: the factor ``lam`` ``(3 + d, 3 + d)`` splits into a pose factor and
-    ``r = C x + c + e``, ``e ~ N(0, lam_rr^-1)``; the pose is updated with the first, and
-    ``r`` is appended with its error ``C e_x + e`` (``e`` scaled too).
+    ``r = C x + c + e`` (:func:`~vslam_gym.slam.state_update.reference_given_pose`); the
+    pose is updated with the first, and ``r`` is appended with its error ``C e_x + e``
+    (``e`` scaled too).
     """
-    lam_rr = lam[POSE_DIM:, POSE_DIM:]
-    c_mat = -np.linalg.solve(lam_rr, lam[POSE_DIM:, :POSE_DIM])
-    e_cov = np.linalg.inv(lam_rr)
-    lam_x = symmetrize(lam[:POSE_DIM, :POSE_DIM] + lam[:POSE_DIM, POSE_DIM:] @ c_mat)
-    px = factor_update(p, sigma, np.arange(POSE_DIM), lam_x, scale)
-    n, d = p.shape[0], lam_rr.shape[0]
-    out = np.zeros((n + d, n + d))
-    out[:n, :n] = px
-    cross = c_mat @ px[:POSE_DIM]
-    out[n:, :n] = cross
-    out[:n, n:] = cross.T
-    out[n:, n:] = symmetrize(c_mat @ px[:POSE_DIM, :POSE_DIM] @ c_mat.T + scale * e_cov)
-    return out
+    _, c_mat, e_cov, lam_x = reference_given_pose(lam)
+    px = factor_update(p, sigma, np.arange(POSE_DIM), symmetrize(lam_x), scale)
+    return append_reference(px, c_mat, scale * e_cov)

@@ -315,6 +315,37 @@ def _woodbury(
     return mu_new, sigma_new
 
 
+def reference_given_pose(
+    lam: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A new landmark's factor ``C(lam, .)`` on ``(x, r)`` split as ``p(r | x) f(x)``.
+
+    ``r = C x + c + e``, ``e ~ N(0, lam_rr^-1)``; ``f`` has the information ``lam_x =
+    lam_xx + lam_xr C`` on the pose. Returns ``(chol(lam_rr), C, lam_rr^-1, lam_x)``
+    (``c`` needs the factor's ``eta``: ``cho_solve(chol, eta_r)``).
+    """
+    chol = np.linalg.cholesky(lam[3:, 3:])  # lam: a finite Canonical's
+    c_mat = -cho_solve_finite(chol, lam[3:, :3])
+    e_cov = cho_solve_finite(chol, np.eye(lam.shape[0] - 3))
+    return chol, c_mat, e_cov, lam[:3, :3] + lam[:3, 3:] @ c_mat
+
+
+def append_reference(cov: np.ndarray, c_mat: np.ndarray, e_cov: np.ndarray) -> np.ndarray:
+    """The state covariance ``cov`` ``(n, n)`` with ``r = C x + e`` appended (``e`` apart).
+
+    ``C`` ``(d, 3)`` maps the pose, ``e_cov`` ``(d, d)`` is the covariance of ``e``,
+    independent of the state.
+    """
+    n, d = cov.shape[0], e_cov.shape[0]
+    out = np.zeros((n + d, n + d))
+    out[:n, :n] = cov
+    cross = c_mat @ cov[:3, :]
+    out[n:, :n] = cross
+    out[:n, n:] = cross.T
+    out[n:, n:] = symmetrize(c_mat @ cov[:3, :3] @ c_mat.T + e_cov)
+    return out
+
+
 def state_space_update(
     mu: np.ndarray,
     sigma: np.ndarray,
@@ -386,22 +417,12 @@ def state_space_update(
             sigma_new[local_idx[:, None], local_idx], "state covariance after the landmark update"
         )
     else:
-        lam_rr = lam[3:, 3:]
-        chol = np.linalg.cholesky(lam_rr)  # lam, eta: a finite Canonical's
-        c_mat = -cho_solve_finite(chol, lam[3:, :3])  # r | x = C x + c + e
+        chol, c_mat, e_cov, lam_x = reference_given_pose(lam)
         c_vec = cho_solve_finite(chol, eta[3:])
-        e_cov = cho_solve_finite(chol, np.eye(d))
-        lam_x = lam[:3, :3] + lam[:3, 3:] @ c_mat
         eta_x = eta[:3] - lam[:3, 3:] @ c_vec
         mu_x, sigma_x = _woodbury(mu, sigma, pose, symmetrize(lam_x), eta_x)
-        n = mu.size
         mu_new = np.concatenate([mu_x, c_mat @ mu_x[:3] + c_vec])
-        sigma_new = np.zeros((n + d, n + d))
-        sigma_new[:n, :n] = sigma_x
-        cross = c_mat @ sigma_x[:3, :]
-        sigma_new[n:, :n] = cross
-        sigma_new[:n, n:] = cross.T
-        sigma_new[n:, n:] = symmetrize(c_mat @ sigma_x[:3, :3] @ c_mat.T + e_cov)
+        sigma_new = append_reference(sigma_x, c_mat, e_cov)
         cholesky(sigma_x[:3, :3], "state covariance after the landmark update")
     if with_factor:
         return mu_new, sigma_new, conditional, lam
