@@ -27,20 +27,11 @@ import json
 
 import numpy as np
 
-from vslam_gym.evaluation import pose_nees, position_ate_rmse, run_episode
+from vslam_gym.evaluation import NEES_PARTS, pose_nees, position_ate_rmse, run_episode
 from vslam_gym.slam.geometry import wrap_angle
 
-PARTS = {"position": [0, 1], "heading": [2]}
-"""The pose's components [x, y, theta] of each part of the NEES."""
 FIFTHS = 5
 """The route is summarised in this many equal stretches of steps."""
-
-
-def block_nees(error: np.ndarray, covariances: np.ndarray, rows: list[int]) -> np.ndarray:
-    """``e_b^T P_bb^-1 e_b`` per step for the block ``rows`` of the pose, ``(N,)``."""
-    e = error[:, rows]
-    block = covariances[:, rows][:, :, rows]
-    return np.einsum("ni,ni->n", e, np.linalg.solve(block, e[..., None])[..., 0])
 
 
 def correlation(covariances: np.ndarray) -> np.ndarray:
@@ -64,7 +55,10 @@ def report(world: str, seed: int, preset: str, overrides: dict | None, points: i
     error[:, 2] = wrap_angle(error[:, 2])
     covs = log.slam_covs[1:]  # row 0 is the known start (zero covariance)
     full = pose_nees(log.slam_poses[1:], covs, log.true_poses[1:])
-    parts = {name: block_nees(error[1:], covs, rows) for name, rows in PARTS.items()}
+    parts = {
+        name: pose_nees(log.slam_poses[1:], covs, log.true_poses[1:], rows)
+        for name, rows in NEES_PARTS.items()
+    }
     ate = position_ate_rmse(log.slam_poses, log.true_poses)
     print(
         f"{world} seed {seed}: {log.steps} steps, position ATE {ate:.3f} m; mean NEES "

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from vslam_gym.evaluation import (
+    NEES_PARTS,
     TIMING_KEYS,
     DecisionRecord,
     SeedsError,
@@ -110,6 +111,25 @@ def test_nees_uses_the_correlations():
     nees = pose_nees(np.zeros((1, 3)), cov[None], e[None])
     assert nees[0] == pytest.approx(e @ np.linalg.solve(cov, e))
     assert nees[0] == pytest.approx(20.0)
+
+
+def test_nees_parts_use_their_block_of_the_covariance():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(4, 3, 3))
+    covs = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(3)
+    true = rng.normal(size=(4, 3))
+    est = np.zeros((4, 3))
+    position = pose_nees(est, covs, true, NEES_PARTS["position"])
+    heading = pose_nees(est, covs, true, NEES_PARTS["heading"])
+    for t in range(4):
+        e = true[t, :2]
+        assert position[t] == pytest.approx(e @ np.linalg.solve(covs[t][:2, :2], e))
+        assert heading[t] == pytest.approx(true[t, 2] ** 2 / covs[t][2, 2])
+    # a marginal's NEES is never above the whole pose's
+    assert np.all(pose_nees(est, covs, true) >= position - 1e-12)
+    for bad in ((), (0, 0), (3,), (-1,)):
+        with pytest.raises(ValueError, match="components"):
+            pose_nees(est, covs, true, bad)
 
 
 def test_nees_is_nan_for_a_covariance_that_is_not_positive_definite():

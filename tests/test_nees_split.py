@@ -25,19 +25,6 @@ def test_heading_drift_is_the_heading_error_times_the_path_across_it():
     np.testing.assert_allclose(drift[5], [0.0, 0.01], atol=1e-12)
 
 
-def test_block_nees_uses_the_block_of_the_covariance():
-    rng = np.random.default_rng(0)
-    error = rng.normal(size=(4, 3))
-    a = rng.normal(size=(4, 3, 3))
-    covs = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(3)
-    position = nees_split.block_nees(error, covs, [0, 1])
-    heading = nees_split.block_nees(error, covs, [2])
-    for t in range(4):
-        block = covs[t][:2, :2]
-        assert position[t] == pytest.approx(error[t, :2] @ np.linalg.solve(block, error[t, :2]))
-        assert heading[t] == pytest.approx(error[t, 2] ** 2 / covs[t][2, 2])
-
-
 def test_correlation_is_the_larger_absolute_position_heading_one():
     cov = np.diag([4.0, 1.0, 1.0])
     cov[0, 2] = cov[2, 0] = -1.0  # corr -0.5

@@ -55,6 +55,7 @@ from vslam_gym.surfaces import SurfacePieces, surface_pieces
 __all__ = [
     "ASSOCIATION_OUTCOMES",
     "CREATION_CAUSES",
+    "NEES_PARTS",
     "DecisionRecord",
     "EpisodeLog",
     "SeedsError",
@@ -98,6 +99,8 @@ __all__ = [
 
 POSE_DOF = 3
 """Degrees of freedom of the pose NEES ``(x, y, theta)``."""
+NEES_PARTS = {"position": (0, 1), "heading": (2,)}
+"""The pose components of the NEES parts ``nees_position_mean`` / ``nees_heading_mean``."""
 CONFIDENCE = 0.95
 """Probability mass of the two-sided chi-square intervals (per-step band, mean NEES)."""
 TIMING_PERCENTILE = 95.0
@@ -486,28 +489,40 @@ def final_position_error(estimated: np.ndarray, true: np.ndarray) -> float:
     return float(np.hypot(*(est[-1, :2] - ref[-1, :2])))
 
 
-def pose_nees(estimated: np.ndarray, covariances: np.ndarray, true: np.ndarray) -> np.ndarray:
-    """Normalised estimation error squared of the pose, per step (3 dof, no unit).
+def pose_nees(
+    estimated: np.ndarray,
+    covariances: np.ndarray,
+    true: np.ndarray,
+    components: Sequence[int] = (0, 1, 2),
+) -> np.ndarray:
+    """Normalised estimation error squared of the pose, per step (no unit).
 
     ``e^T P^-1 e`` with ``e = true - estimated`` (heading wrapped to ``[-pi, pi)``) and
-    ``P`` the ``(3, 3)`` pose covariance [m^2, m rad, rad^2]. For a consistent filter it
-    is chi-square distributed with 3 degrees of freedom (mean 3).
+    ``P`` the ``(3, 3)`` pose covariance [m^2, m rad, rad^2], or of their rows and
+    columns ``components`` only (:data:`NEES_PARTS`: the position ``(0, 1)``, the
+    heading ``(2,)``). For a consistent filter it is chi-square distributed with as many
+    degrees of freedom as components (mean 3 for the whole pose).
 
     Args:
         estimated: ``(N, 3)`` pose means ``(x [m], y [m], theta [rad])``.
         covariances: ``(N, 3, 3)`` their covariances.
         true: ``(N, 3)`` true poses.
+        components: distinct indices into ``(x, y, theta)``, at least one.
 
     Returns:
-        ``(N,)`` NEES values; NaN where a covariance is not positive definite.
+        ``(N,)`` NEES values; NaN where a covariance block is not positive definite.
     """
     est, ref = _poses("estimated", estimated, 3), _poses("true", true, 3)
     _same_length(est, ref)
     cov = np.asarray(covariances, dtype=float)
     if cov.shape != (est.shape[0], POSE_DOF, POSE_DOF):
         raise ValueError(f"covariances must have shape ({est.shape[0]}, 3, 3), got {cov.shape}")
+    rows = list(components)
+    if not rows or len(set(rows)) != len(rows) or not set(rows) <= set(range(POSE_DOF)):
+        raise ValueError(f"components must be distinct indices into (x, y, theta), got {rows}")
     e = ref[:, :3] - est[:, :3]
     e[:, 2] = wrap_angle(e[:, 2])
+    e, cov = e[:, rows], cov[:, rows][:, :, rows]
     out = np.full(est.shape[0], np.nan)
     for t in range(est.shape[0]):
         try:
@@ -784,6 +799,9 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     with the filter's motion model, :func:`odometry_covariances`);
     ``filter_nees_mean`` and ``filter_nees_in_band_fraction`` (the same with the
     filter's own covariance, ``EpisodeLog.filter_covs``; NaN when not recorded);
+    ``nees_position_mean`` and ``nees_heading_mean`` (the mean NEES of the position
+    alone, 2 degrees of freedom, and of the heading alone, 1: which part of the pose is
+    over- or underconfident; :data:`NEES_PARTS`);
     ``association_precision`` and ``associations``; ``update_precision`` and
     ``updates`` (the same over the associations that updated the map: an
     ``"associated"`` set, matched with too few beams on object lines to update, often
@@ -858,6 +876,11 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     )
     out["filter_nees_mean"] = own["nees_mean"]
     out["filter_nees_in_band_fraction"] = own["nees_in_band_fraction"]
+    for part, components in NEES_PARTS.items():
+        values = pose_nees(est, log.slam_covs[1:], true, components)
+        out[f"nees_{part}_mean"] = (
+            float(np.nanmean(values)) if np.isfinite(values).any() else math.nan
+        )
     out.update(
         {
             "association_precision": precision,
