@@ -62,8 +62,8 @@ def report(world: str, seed: int, preset: str, overrides: dict | None, points: i
     ate = position_ate_rmse(log.slam_poses, log.true_poses)
     print(
         f"{world} seed {seed}: {log.steps} steps, position ATE {ate:.3f} m; mean NEES "
-        f"{full.mean():.1f} (3 dof), position {parts['position'].mean():.1f} (2), "
-        f"heading {parts['heading'].mean():.1f} (1)"
+        f"{np.nanmean(full):.1f} (3 dof), position {np.nanmean(parts['position']):.1f} (2), "
+        f"heading {np.nanmean(parts['heading']):.1f} (1)"
     )
     steps = len(full)
     print(
@@ -74,7 +74,7 @@ def report(world: str, seed: int, preset: str, overrides: dict | None, points: i
         rows = slice(k * steps // FIFTHS, (k + 1) * steps // FIFTHS)
         e, p = error[1:][rows], covs[rows]
         print(
-            f"  {k + 1:>4d} of {FIFTHS} {full[rows].mean():6.1f} "
+            f"  {k + 1:>4d} of {FIFTHS} {np.nanmean(full[rows]):6.1f} "
             f"{np.hypot(e[:, 0], e[:, 1]).mean():9.3f} "
             f"{np.sqrt(p[:, 0, 0] + p[:, 1, 1]).mean():8.3f} "
             f"{np.abs(e[:, 2]).mean():10.4f} {np.sqrt(p[:, 2, 2]).mean():9.4f} "

@@ -1,4 +1,4 @@
-"""The NEES split diagnostic (benchmarks/nees_split.py): its two formulas."""
+"""The NEES split diagnostic (benchmarks/nees_split.py): its heading drift and correlation."""
 
 import importlib.util
 from pathlib import Path
