@@ -13,7 +13,8 @@ evaluating on 1000-1019) so that no evaluation world was seen in training.
 Per episode: coverage (fraction of the true obstacle boundary within 0.1 m of a
 modelled object line, :func:`vslam_gym.exploration.coverage`, at the end), position
 ATE (RMSE of ``info["slam_pose"]`` against ``info["pose"]``, no alignment), the mean
-3-dof pose NEES, collisions, the return (the wrapper's belief reward), steps, final
+3-dof pose NEES (and of the position and the heading alone, ``nees_position_mean`` and
+``nees_heading_mean``), collisions, the return (the wrapper's belief reward), steps, final
 landmark count and throughput. Written to ``OUT``:
 
 - ``metrics.json``: settings, per-episode metrics and their mean;
@@ -52,6 +53,7 @@ import numpy as np  # noqa: E402
 import vslam_gym  # noqa: E402
 from agents.scripted import SCRIPTED_AGENTS, Agent, make_agent  # noqa: E402
 from vslam_gym.evaluation import (  # noqa: E402
+    NEES_PARTS,
     json_safe,
     machine_description,
     name_or_mapping,
@@ -209,6 +211,15 @@ def _row(step: int, info: Mapping[str, Any], reward: float, cover: float) -> dic
     return row
 
 
+def _finite_mean(values: np.ndarray) -> float:
+    """Mean of the finite ``values``, NaN when there is none.
+
+    A NaN value marks a step whose covariance was not positive definite.
+    """
+    finite = values[np.isfinite(values)]
+    return float(finite.mean()) if finite.size else math.nan
+
+
 def run_agent_episode(
     env: gym.Env,
     agent: Agent,
@@ -268,8 +279,11 @@ def run_agent_episode(
             on_step(step)
     wall = time.perf_counter() - start
     true_arr, slam_arr = np.asarray(true_poses), np.asarray(slam_poses)
-    nees = pose_nees(slam_arr[1:], np.asarray(covariances).reshape(-1, 3, 3), true_arr[1:])
-    finite = nees[np.isfinite(nees)]
+    covs = np.asarray(covariances).reshape(-1, 3, 3)
+    parts = {
+        f"nees_{part}_mean": _finite_mean(pose_nees(slam_arr[1:], covs, true_arr[1:], rows))
+        for part, rows in NEES_PARTS.items()
+    }
     metrics = {
         "seed": int(seed),
         "world": env.unwrapped.world.name,
@@ -278,7 +292,8 @@ def run_agent_episode(
         "truncated": bool(truncated),
         "coverage": rows[-1]["coverage"],
         "ate_m": position_ate_rmse(slam_arr, true_arr),
-        "nees_mean": float(finite.mean()) if finite.size else math.nan,
+        "nees_mean": _finite_mean(pose_nees(slam_arr[1:], covs, true_arr[1:])),
+        **parts,
         "collisions": collisions,
         "return": total,
         "landmarks": int(info["landmarks"]),
