@@ -57,6 +57,7 @@ from vslam_gym.evaluation import (  # noqa: E402
     json_safe,
     machine_description,
     name_or_mapping,
+    nees_summary,
     pose_nees,
     position_ate_rmse,
     progress_bar,
@@ -211,15 +212,6 @@ def _row(step: int, info: Mapping[str, Any], reward: float, cover: float) -> dic
     return row
 
 
-def _finite_mean(values: np.ndarray) -> float:
-    """Mean of the finite ``values``, NaN when there is none.
-
-    A NaN value marks a step whose covariance was not positive definite.
-    """
-    finite = values[np.isfinite(values)]
-    return float(finite.mean()) if finite.size else math.nan
-
-
 def run_agent_episode(
     env: gym.Env,
     agent: Agent,
@@ -281,7 +273,9 @@ def run_agent_episode(
     true_arr, slam_arr = np.asarray(true_poses), np.asarray(slam_poses)
     covs = np.asarray(covariances).reshape(-1, 3, 3)
     parts = {
-        f"nees_{part}_mean": _finite_mean(pose_nees(slam_arr[1:], covs, true_arr[1:], rows))
+        f"nees_{part}_mean": nees_summary(
+            pose_nees(slam_arr[1:], covs, true_arr[1:], rows), len(rows)
+        )["nees_mean"]
         for part, rows in NEES_PARTS.items()
     }
     metrics = {
@@ -292,7 +286,7 @@ def run_agent_episode(
         "truncated": bool(truncated),
         "coverage": rows[-1]["coverage"],
         "ate_m": position_ate_rmse(slam_arr, true_arr),
-        "nees_mean": _finite_mean(pose_nees(slam_arr[1:], covs, true_arr[1:])),
+        "nees_mean": nees_summary(pose_nees(slam_arr[1:], covs, true_arr[1:]))["nees_mean"],
         **parts,
         "collisions": collisions,
         "return": total,

@@ -878,9 +878,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     out["filter_nees_in_band_fraction"] = own["nees_in_band_fraction"]
     for part, components in NEES_PARTS.items():
         values = pose_nees(est, log.slam_covs[1:], true, components)
-        out[f"nees_{part}_mean"] = (
-            float(np.nanmean(values)) if np.isfinite(values).any() else math.nan
-        )
+        out[f"nees_{part}_mean"] = nees_summary(values, len(components))["nees_mean"]
     out.update(
         {
             "association_precision": precision,

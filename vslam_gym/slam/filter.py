@@ -884,7 +884,10 @@ class VertexSLAM:
         return odometry_noise(u, cfg.odometry_alphas, np.asarray(cfg.odometry_sigma_floor))
 
     def _motion_update(self, u: np.ndarray) -> None:
-        lidar_u, noise = self._lidar_increments(u), self._odometry_noise(u)
+        self._odometry_update(self._lidar_increments(u), self._odometry_noise(u))
+
+    def _odometry_update(self, lidar_u: np.ndarray, noise: np.ndarray) -> None:
+        """The motion update with lidar increments ``lidar_u`` and their ``noise``."""
         if self._error is not None:  # affine in the covariance: the same update
             self._error = motion_update(self._mu, self._error, lidar_u, noise)[1]
         self._mu, self._sigma = motion_update(self._mu, self._sigma, lidar_u, noise)
@@ -927,9 +930,7 @@ class VertexSLAM:
         # the mean the odometry's motion update would give (motion_update's own)
         if not self._moved_enough(predict_pose(self._mu[:3], lidar_u)):
             self._pending = (since, since_cov, pose, pose_rows)
-            if self._error is not None:
-                self._error = motion_update(self._mu, self._error, lidar_u, noise)[1]
-            self._mu, self._sigma = motion_update(self._mu, self._sigma, lidar_u, noise)
+            self._odometry_update(lidar_u, noise)
             return False
         # a measuring step: its odometry update would be replaced at once, so the state
         # goes straight back to the pose rows after the last measurement update
