@@ -9,7 +9,11 @@ from test_state_update import make_case, random_spd
 from vslam_gym.evaluation import episode_metrics, run_episode
 from vslam_gym.slam import error_covariance as ec
 from vslam_gym.slam.config import FilterConfig
-from vslam_gym.slam.state_update import pose_measurement_update, state_space_update
+from vslam_gym.slam.state_update import (
+    pose_measurement_update,
+    reference_given_pose,
+    state_space_update,
+)
 
 FILTER_OWN = {"filter": {"error_noise_scale": 0}}
 """The belief reports the filter's own covariance (the ``thesis`` preset's way)."""
@@ -77,7 +81,8 @@ def test_error_noise_scale_keeps_the_estimates_and_widens_the_reported_covarianc
 
 def test_error_noise_scale_at_one_reports_the_filters_covariance():
     plain = run_episode("small", 1, max_steps=80, overrides=FILTER_OWN)
-    same = run_episode("small", 1, max_steps=80, overrides={"filter": {"error_noise_scale": 1}})
+    joseph = {"error_noise_scale": 1, "error_creation_pose_update": True}
+    same = run_episode("small", 1, max_steps=80, overrides={"filter": joseph})
     np.testing.assert_array_equal(same.slam_poses, plain.slam_poses)
     np.testing.assert_allclose(same.slam_covs, plain.slam_covs, rtol=1e-9, atol=1e-15)
 
@@ -90,6 +95,7 @@ def test_error_noise_scale_is_validated(value):
 
 def test_error_noise_scale_defaults():
     assert FilterConfig().error_noise_scale == 10.0
+    assert FilterConfig().error_creation_pose_update is False
     assert FilterConfig.thesis().error_noise_scale == 0.0
 
 
@@ -102,3 +108,67 @@ def test_the_belief_and_the_metrics_keep_the_filters_own_covariance_too():
     m_own, m_default = episode_metrics(own), episode_metrics(default)
     assert m_default["filter_nees_mean"] == m_own["nees_mean"] == m_own["filter_nees_mean"]
     assert m_default["nees_mean"] < m_default["filter_nees_mean"]
+
+
+def test_add_landmark_without_the_pose_update_keeps_the_pose_block():
+    rng = np.random.default_rng(7)
+    mu, sigma, a2, b2, k2, a3, b3, k3 = make_case(rng, new=True, d=2)
+    _, _, _, lam = state_space_update(mu, sigma, None, a2, b2, k2, a3, b3, k3, with_factor=True)
+    p = random_spd(rng, mu.size, 0.02)
+    got = ec.add_landmark(p, sigma, lam, 4.0, pose_update=False)
+    n = mu.size
+    assert got.shape == (n + 2, n + 2)
+    np.testing.assert_array_equal(got[:n, :n], p)
+    _, c_mat, e_cov, _ = reference_given_pose(lam)
+    np.testing.assert_allclose(got[n:, :n], c_mat @ p[:3], rtol=1e-12)
+    np.testing.assert_allclose(got[n:, n:], c_mat @ p[:3, :3] @ c_mat.T + 4.0 * e_cov, rtol=1e-10)
+    with_update = ec.add_landmark(p, sigma, lam, 4.0)
+    assert np.trace(with_update[:3, :3]) < np.trace(p[:3, :3])
+
+
+def test_a_landmark_creation_leaves_the_pose_mean_where_it_was(monkeypatch):
+    """Why ``error_creation_pose_update`` may be off: the thesis's creation uses its scan
+    twice, so its pose factor shrinks the filter's covariance without moving the mean."""
+    from vslam_gym.slam.filter import VertexSLAM
+
+    shifts, shrinks = [], []
+    create = VertexSLAM._create_landmark
+
+    def recorded(self, *args, **kwargs):
+        mu, sd = self._mu[:3].copy(), np.sqrt(self._sigma[2, 2])
+        out = create(self, *args, **kwargs)
+        if out is not None:
+            shifts.append(np.abs(self._mu[:3] - mu).max())
+            shrinks.append(np.sqrt(self._sigma[2, 2]) / sd)
+        return out
+
+    monkeypatch.setattr(VertexSLAM, "_create_landmark", recorded)
+    run_episode("small", 0, max_steps=120)
+    assert len(shifts) >= 5
+    assert max(shifts) < 1e-12, max(shifts)
+    assert np.median(shrinks) < 0.99, np.median(shrinks)  # the heading sd shrinks anyway
+
+
+def test_error_creation_pose_update_keeps_the_estimates():
+    plain = run_episode("small", 0, max_steps=120)  # the default: no pose update
+    on = {"filter": {"error_creation_pose_update": True}}
+    kept = run_episode("small", 0, max_steps=120, overrides=on)
+    np.testing.assert_array_equal(kept.slam_poses, plain.slam_poses)
+    np.testing.assert_array_equal(kept.filter_covs, plain.filter_covs)
+    assert not np.allclose(kept.slam_covs, plain.slam_covs)
+    for cov in kept.slam_covs:
+        np.testing.assert_allclose(cov, cov.T, atol=1e-15)
+        assert np.linalg.eigvalsh(cov)[0] > 0
+    # without the creations' spurious information the pose is reported less sure on the
+    # whole (not at every step: the later Joseph updates use the filter's gains)
+    wide, narrow = np.asarray(plain.slam_covs), np.asarray(kept.slam_covs)
+    assert wide[:, 2, 2].mean() > 1.2 * narrow[:, 2, 2].mean()
+    assert (
+        np.trace(wide[:, :2, :2], axis1=1, axis2=2).mean()
+        > 1.2 * np.trace(narrow[:, :2, :2], axis1=1, axis2=2).mean()
+    )
+
+
+def test_error_creation_pose_update_is_a_bool():
+    with pytest.raises(ValueError, match="error_creation_pose_update"):
+        FilterConfig(error_creation_pose_update=1)

@@ -916,8 +916,24 @@ class FilterConfig:
             fraction of steps in the 95 % band: 0: 8 / 19 / 35 / 132, 0.72 / 0.58 /
             0.29 / 0.19; 5: 3 / 6 / 11 / 40, 0.95 / 0.85 / 0.59 / 0.37; 10: 2 / 4 / 6 /
             22, 0.94 / 0.86 / 0.76 / 0.49; 20: 1 / 2 / 3 / 12, 0.87 / 0.81 / 0.86 /
-            0.61; the ``frontier`` explorer on worlds 1000-1059 at 10: 89 -> 33. About
-            2 % more CPU time per step on ``house``. 10 by default.
+            0.61; the ``frontier`` explorer on worlds 1000-1059 at 10: 89 -> 33 (these
+            figures with ``error_creation_pose_update`` True, the default until session
+            32). About 2 % more CPU time per step on ``house``. 10 by default.
+        error_creation_pose_update: with ``error_noise_scale`` > 0, whether the error
+            covariance takes the pose information of a landmark creation
+            (``new_landmark`` ``"thesis"`` or ``"halved"``). That creation uses its scan
+            twice, as the new model's vertex prior and as the observation of it, so its
+            pose factor leaves the pose mean where it was (shifts of about 1e-15) and
+            only shrinks the filter's covariance: the estimation error does not change.
+            False (default since session 32): the error covariance's pose block stays
+            as it is and the new reference enters with its error ``C e_x + e``
+            (:func:`~vslam_gym.slam.error_covariance.add_landmark`). The estimates do
+            not change either way. Measured (docs/measurements.md, "Session 32";
+            seeds 0-9, ``house`` 0-19; single_landmark / small / curved / ``house``):
+            True -> False, mean pose NEES 1.8 / 3.8 / 6.0 / 22.0 -> 1.4 / 2.4 / 5.7 /
+            21.5, steps in the 95 % band 0.94 / 0.86 / 0.76 / 0.49 -> 0.91 / 0.90 /
+            0.78 / 0.51; the ``frontier`` explorer's mean NEES on worlds 1000-1019 27.1
+            -> 27.0.
         loop_prior_rival: when > 0, a revisit match is declined as ambiguous when the scan,
             fitted locally at the predicted pose
             (:func:`~vslam_gym.slam.scan_matching.local_fit`), ends at a distinct pose (the
@@ -1040,6 +1056,7 @@ class FilterConfig:
     loop_max_correction: float = math.inf
     repeat_updates: float = 0.0
     error_noise_scale: float = 10.0
+    error_creation_pose_update: bool = False
     loop_strong_inlier_fraction: float = 0.8
     loop_strong_max_mahalanobis: float = 12.0
     loop_prior_rival: float = 0.7
@@ -1051,7 +1068,7 @@ class FilterConfig:
     def __post_init__(self) -> None:
         for name in ("icp_gate_sigma_floor", "loop_sigma_floor", "icp_prior_sigma_floor"):
             self._sigma_triple(name)
-        for name in ("prune_merge", "loop_closure"):
+        for name in ("prune_merge", "loop_closure", "error_creation_pose_update"):
             value = getattr(self, name)
             if not isinstance(value, bool):
                 raise ValueError(f"FilterConfig.{name} must be a bool, got {value!r}")

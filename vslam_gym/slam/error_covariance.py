@@ -26,6 +26,13 @@ noise ``Lambda^-1`` (on its range): the filter's gain is ``K = Sigma_:s M`` with
 ``M = Lambda (I + Sigma_ss Lambda)^-1``, and ``K R K^T = Sigma_:s M^T (I - Sigma_ss M)
 Sigma_s:`` needs no inverse of ``Lambda``.
 
+The thesis's creation of a landmark is not such a measurement: it uses its scan twice,
+as the new model's vertex prior and as the observation of it, so its pose factor leaves
+the pose mean where it was (shifts of about 1e-15) and the estimation error with it.
+By default (``FilterConfig.error_creation_pose_update`` False) ``P``'s pose block stays as
+it is at a creation, and only the new reference is appended with its error
+(:func:`add_landmark`).
+
 Frames and units: the filter's state ``[x; r_0; ...]`` (pose [m, m, rad], references
 [m] or landmark frames [m, m, rad]). Pure numpy.
 """
@@ -95,15 +102,19 @@ def pose_update(p: np.ndarray, sigma: np.ndarray, noise: np.ndarray) -> np.ndarr
     return factor_update(p, sigma, np.arange(POSE_DIM), np.linalg.inv(noise), 1.0)
 
 
-def add_landmark(p: np.ndarray, sigma: np.ndarray, lam: np.ndarray, scale: float) -> np.ndarray:
+def add_landmark(
+    p: np.ndarray, sigma: np.ndarray, lam: np.ndarray, scale: float, pose_update: bool = True
+) -> np.ndarray:
     """``P`` after the thesis's creation (a factor on the pose and a new reference).
 
     As :func:`~vslam_gym.slam.state_update.state_space_update` with no prior on the
     reference: the factor ``lam`` ``(3 + d, 3 + d)`` splits into a pose factor and
     ``r = C x + c + e`` (:func:`~vslam_gym.slam.state_update.reference_given_pose`); the
-    pose is updated with the first, and ``r`` is appended with its error ``C e_x + e``
-    (``e`` scaled too).
+    pose is updated with the first (unless ``pose_update`` is False:
+    ``FilterConfig.error_creation_pose_update``), and ``r`` is appended with its error
+    ``C e_x + e`` (``e`` scaled too).
     """
     _, c_mat, e_cov, lam_x = reference_given_pose(lam)
-    px = factor_update(p, sigma, np.arange(POSE_DIM), symmetrize(lam_x), scale)
-    return append_reference(px, c_mat, scale * e_cov)
+    if pose_update:
+        p = factor_update(p, sigma, np.arange(POSE_DIM), symmetrize(lam_x), scale)
+    return append_reference(p, c_mat, scale * e_cov)

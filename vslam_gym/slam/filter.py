@@ -1786,7 +1786,13 @@ class VertexSLAM:
                 )
                 error = self._error
                 if error is not None:
-                    error = error_covariance.add_landmark(error, self._sigma, lam, scale)
+                    error = error_covariance.add_landmark(
+                        error,
+                        self._sigma,
+                        lam,
+                        scale,
+                        self.config.filter.error_creation_pose_update,
+                    )
             else:
                 ref_sigma = self.config.filter.reference_heading_sigma
                 mu, sigma, cond = augment_landmark(
