@@ -923,7 +923,7 @@ class FilterConfig:
             covariance takes the pose information of a landmark creation
             (``new_landmark`` ``"thesis"`` or ``"halved"``). That creation uses its scan
             twice, as the new model's vertex prior and as the observation of it, so its
-            pose factor leaves the pose mean where it was (shifts of about 1e-15) and
+            pose factor leaves the pose mean where it was (shifts below 1e-12) and
             only shrinks the filter's covariance: the estimation error does not change.
             False (default since session 32): the error covariance's pose block stays
             as it is and the new reference enters with its error ``C e_x + e``

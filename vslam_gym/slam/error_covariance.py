@@ -28,7 +28,7 @@ Sigma_s:`` needs no inverse of ``Lambda``.
 
 The thesis's creation of a landmark is not such a measurement: it uses its scan twice,
 as the new model's vertex prior and as the observation of it, so its pose factor leaves
-the pose mean where it was (shifts of about 1e-15) and the estimation error with it.
+the pose mean where it was (shifts below 1e-12) and the estimation error with it.
 By default (``FilterConfig.error_creation_pose_update`` False) ``P``'s pose block stays as
 it is at a creation, and only the new reference is appended with its error
 (:func:`add_landmark`).
