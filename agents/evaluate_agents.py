@@ -53,10 +53,10 @@ import numpy as np  # noqa: E402
 import vslam_gym  # noqa: E402
 from agents.scripted import SCRIPTED_AGENTS, Agent, make_agent  # noqa: E402
 from vslam_gym.evaluation import (  # noqa: E402
-    NEES_PARTS,
     json_safe,
     machine_description,
     name_or_mapping,
+    nees_part_means,
     nees_summary,
     pose_nees,
     position_ate_rmse,
@@ -272,12 +272,7 @@ def run_agent_episode(
     wall = time.perf_counter() - start
     true_arr, slam_arr = np.asarray(true_poses), np.asarray(slam_poses)
     covs = np.asarray(covariances).reshape(-1, 3, 3)
-    parts = {
-        f"nees_{part}_mean": nees_summary(
-            pose_nees(slam_arr[1:], covs, true_arr[1:], rows), len(rows)
-        )["nees_mean"]
-        for part, rows in NEES_PARTS.items()
-    }
+    parts = nees_part_means(slam_arr[1:], covs, true_arr[1:])
     metrics = {
         "seed": int(seed),
         "world": env.unwrapped.world.name,

@@ -81,6 +81,7 @@ __all__ = [
     "majority_id",
     "name_or_mapping",
     "mean_nees_interval",
+    "nees_part_means",
     "nees_summary",
     "parse_seeds",
     "pose_nees",
@@ -585,6 +586,22 @@ def mean_nees_interval(
     return low / n, high / n
 
 
+def nees_part_means(
+    estimated: np.ndarray, covariances: np.ndarray, true: np.ndarray
+) -> dict[str, float]:
+    """The mean NEES of each block of :data:`NEES_PARTS`, keyed ``nees_<part>_mean``.
+
+    :func:`pose_nees` with the block's components, NaN-safe means by
+    :func:`nees_summary`; arguments as :func:`pose_nees`.
+    """
+    return {
+        f"nees_{part}_mean": nees_summary(
+            pose_nees(estimated, covariances, true, components), len(components)
+        )["nees_mean"]
+        for part, components in NEES_PARTS.items()
+    }
+
+
 def nees_summary(
     nees: np.ndarray, dof: int = POSE_DOF, confidence: float = CONFIDENCE
 ) -> dict[str, Any]:
@@ -876,9 +893,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     )
     out["filter_nees_mean"] = own["nees_mean"]
     out["filter_nees_in_band_fraction"] = own["nees_in_band_fraction"]
-    for part, components in NEES_PARTS.items():
-        values = pose_nees(est, log.slam_covs[1:], true, components)
-        out[f"nees_{part}_mean"] = nees_summary(values, len(components))["nees_mean"]
+    out.update(nees_part_means(est, log.slam_covs[1:], true))
     out.update(
         {
             "association_precision": precision,
