@@ -53,6 +53,7 @@ import numpy as np  # noqa: E402
 import vslam_gym  # noqa: E402
 from agents.scripted import SCRIPTED_AGENTS, Agent, make_agent  # noqa: E402
 from vslam_gym.evaluation import (  # noqa: E402
+    START_SCAN_MODES,
     json_safe,
     machine_description,
     name_or_mapping,
@@ -382,6 +383,7 @@ def evaluate_agent(
     reward: str | None = None,
     shield: bool = False,
     slam_config: str | Mapping[str, Any] | None = None,
+    start_scan: str | None = None,
 ) -> dict[str, Any]:
     """Evaluate an agent over ``episodes`` seeded episodes; optionally write the files.
 
@@ -406,6 +408,8 @@ def evaluate_agent(
         slam_config: the wrapper's ``slam_config`` instead of the registration's (a
             preset name or a :meth:`SlamConfig.from_dict` mapping, e.g. ``{"filter":
             {"loop_closure": False}}``).
+        start_scan: the wrapper's ``start_scan`` instead of the registration's
+            (``"matcher"``): ``"map"`` or ``"none"`` (the behaviour before session 33).
 
     Returns:
         ``{"agent", "env_id", "seed", "episodes", "max_steps", "machine", "per_episode",
@@ -427,6 +431,8 @@ def evaluate_agent(
         wrapper["shield"] = True
     if slam_config is not None:
         wrapper["slam_config"] = slam_config
+    if start_scan is not None:
+        wrapper["start_scan"] = start_scan
     cue = frontier_cue(runner)
     if cue:  # a policy trained with the frontier cue observes it again
         wrapper["observation"] = {"frontier_count": cue}
@@ -465,6 +471,7 @@ def evaluate_agent(
         "reward": reward or "registered",
         "shield": bool(shield),
         "slam_config": slam_config or "registered",
+        "start_scan": start_scan or "registered",
         "seed": seed,
         "episodes": episodes,
         "max_steps": horizon,
@@ -521,6 +528,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="SLAM preset name or JSON mapping over it (default: the registration's), "
         'e.g. \'{"filter": {"loop_closure": false}}\'',
     )
+    parser.add_argument(
+        "--start-scan",
+        choices=START_SCAN_MODES,
+        default=None,
+        help="what the filter does with the scan of reset (default: the registration's, "
+        "'matcher'); 'none' as before session 33",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -541,6 +555,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             reward=args.reward,
             shield=args.shield,
             slam_config=args.slam_config,
+            start_scan=args.start_scan,
         )
     except (ValueError, gym.error.Error) as err:
         print(f"error: {err}", file=sys.stderr)

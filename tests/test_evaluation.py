@@ -8,6 +8,7 @@ import pytest
 
 from vslam_gym.evaluation import (
     NEES_PARTS,
+    START_SCAN_MODES,
     TIMING_KEYS,
     DecisionRecord,
     SeedsError,
@@ -577,6 +578,38 @@ def test_range_perturbation_is_a_round_off_probe(tmp_path):
             check_range_perturbation(bad)
     with pytest.raises(ValueError, match="range_perturbation"):
         run_episode("small", 0, max_steps=1, range_perturbation=1e-3)
+
+
+def test_start_scan_modes_give_the_scan_of_reset_to_the_matcher_the_map_or_nobody(tmp_path):
+    """The scan of ``reset``: the matcher's first keyframe (default; the first step is
+    aligned to it), a step that makes landmarks (``"map"``), or unused (``"none"``)."""
+    first: dict[str, bool] = {}
+
+    def on_first_step(mode):
+        def progress(step, belief):
+            if step == 1:
+                first[mode] = belief.prealigned
+
+        return progress
+
+    logs = {
+        mode: run_episode("small", 0, max_steps=3, progress=on_first_step(mode), start_scan=mode)
+        for mode in START_SCAN_MODES
+    }
+    # "map" measured the start scan: step 1 has not moved far enough to measure again
+    assert first == {"matcher": True, "map": False, "none": False}
+    assert logs["map"].landmark_counts[0] > 0
+    assert logs["matcher"].landmark_counts[0] == logs["none"].landmark_counts[0] == 0
+    np.testing.assert_array_equal(logs["matcher"].true_poses, logs["none"].true_poses)
+    metrics = evaluate(
+        "small", [0], "default", tmp_path, progress=False, max_steps=3, print_table=False,
+        start_scan="none",
+    )  # fmt: skip
+    assert metrics["start_scan"] == "none"
+    assert "--start-scan none" in format_table(metrics).splitlines()[0]
+    for bad in ("keyframe", True, None):
+        with pytest.raises(ValueError, match="start_scan"):
+            run_episode("small", 0, max_steps=1, start_scan=bad)
 
 
 def test_evaluate_applies_overrides_over_the_preset(tmp_path):

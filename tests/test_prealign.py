@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_filter import PHI, run
+from _raycast import cast
+from test_filter import EDGES, PHI, SENSOR, circle_route, run
 
 from vslam_gym.slam.config import FilterConfig
-from vslam_gym.slam.filter import SlamConfig
+from vslam_gym.slam.filter import SlamConfig, VertexSLAM
 from vslam_gym.slam.motion import increment_to_relative, motion_update, relative_motion_update
 from vslam_gym.slam.state_update import pose_measurement_update
 
@@ -117,3 +118,52 @@ def test_motion_filter_without_matches_equals_the_odometry():
     for a, b in zip(declined, odometry, strict=True):
         np.testing.assert_allclose(a.pose, b.pose, atol=1e-9)
         np.testing.assert_allclose(a.pose_cov, b.pose_cov, rtol=1e-6, atol=1e-12)
+
+
+def _start_scan(rng: np.random.Generator) -> np.ndarray:
+    """A scan from the start of :func:`test_filter.circle_route`."""
+    return cast(circle_route()[0], EDGES, PHI, SENSOR.max_range, 0.0, 0.0, rng)
+
+
+def test_start_scan_is_the_matchers_first_keyframe_at_the_initial_pose():
+    start = circle_route()[0]
+    slam = VertexSLAM(SENSOR, SlamConfig(), initial_pose=start)
+    ranges = _start_scan(np.random.default_rng(0))
+    assert slam.add_start_scan(ranges, PHI)
+    assert len(slam._local_map) == 1 and slam.belief.landmarks == ()
+    # the keyframe's points lie where the scan saw them from the initial pose
+    reference = slam._local_map.reference(start)
+    hits = np.isfinite(ranges) & (ranges < SENSOR.max_range)
+    angles = start[2] + PHI[hits]
+    seen = start[:2] + ranges[hits, None] * np.column_stack([np.cos(angles), np.sin(angles)])
+    gaps = np.linalg.norm(reference.points[:, None, :] - seen[None, :, :], axis=2).min(axis=1)
+    assert len(reference.points) > 20 and gaps.max() < 1e-9  # the points with a normal
+    # the first step is aligned to it (without it the matcher has nothing yet)
+    increments = [0.0, 0.2, 0.0]
+    moved = np.array([start[0] + 0.2 * np.cos(start[2]), start[1] + 0.2 * np.sin(start[2])])
+    pose = np.r_[moved, start[2]]
+    scan = cast(pose, EDGES, PHI, SENSOR.max_range, 0.0, 0.0, np.random.default_rng(1))
+    assert slam.step(increments, scan, PHI).prealigned
+    plain = VertexSLAM(SENSOR, SlamConfig(), initial_pose=start)
+    assert not plain.step(increments, scan, PHI).prealigned
+
+
+def test_start_scan_is_refused_after_a_step_or_twice_and_bad_input_changes_nothing():
+    ranges = _start_scan(np.random.default_rng(0))
+    slam = VertexSLAM(SENSOR, SlamConfig())
+    with pytest.raises(ValueError, match="NaN"):
+        slam.add_start_scan(np.r_[ranges[:-1], np.nan], PHI)
+    with pytest.raises(ValueError):
+        slam.add_start_scan(ranges[:-1], PHI)
+    assert len(slam._local_map) == 0
+    assert slam.add_start_scan(ranges, PHI)
+    with pytest.raises(ValueError, match="once, before the first step"):
+        slam.add_start_scan(ranges, PHI)
+    stepped = VertexSLAM(SENSOR, SlamConfig())
+    stepped.step([0.0, 0.0, 0.0], ranges, PHI)
+    with pytest.raises(ValueError, match="before the first step"):
+        stepped.add_start_scan(ranges, PHI)
+    # without a whole-scan matcher (the thesis, ``fast``) there is nothing to give it to
+    thesis = VertexSLAM(SENSOR, SlamConfig.thesis())
+    assert not thesis.add_start_scan(ranges, PHI)
+    assert len(thesis._local_map) == 0

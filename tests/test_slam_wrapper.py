@@ -277,16 +277,26 @@ def test_ground_truth_does_not_reach_observation_or_reward(tmp_path):
     assert rew_ref == rew_bad
 
 
-def test_reset_starts_a_fresh_map_and_map_reset_scan_option():
+def test_reset_starts_a_fresh_map_and_start_scan_option():
     env = gym.make("VSlam/ExploreSmall-v0")
     obs, info = env.reset(seed=0)
     assert info["landmarks"] == 0 and not obs["belief_map"].any()
     _rollout(env, seed=0, n=20)
     obs, info = env.reset(seed=1)
     assert info["landmarks"] == 0 and env.get_wrapper_attr("belief").step == 0
-    mapped = SlamWrapper(LidarWorldEnv(world="small"), map_reset_scan=True)
+    # the default ("matcher"): the first step is aligned to the scan of reset ...
+    env.step(np.array([0.5, 0.0], dtype=np.float32))
+    assert env.get_wrapper_attr("belief").prealigned
+    # ... which "none" ignores: the matcher has nothing to align the first step to
+    ignored = SlamWrapper(LidarWorldEnv(world="small"), start_scan="none")
+    ignored.reset(seed=1)
+    ignored.step(np.array([0.5, 0.0], dtype=np.float32))
+    assert not ignored.belief.prealigned
+    mapped = SlamWrapper(LidarWorldEnv(world="small"), start_scan="map")
     obs, info = mapped.reset(seed=0)
     assert info["landmarks"] > 0 and obs["belief_map"][0].any()
+    with pytest.raises(ValueError, match="start_scan"):
+        SlamWrapper(LidarWorldEnv(world="small"), start_scan=True)
 
 
 def test_info_reports_the_filters_loop_closures():

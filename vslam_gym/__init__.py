@@ -52,7 +52,7 @@ SLAM_WRAPPER_SPEC = WrapperSpec(
         "slam_config": "default",
         "reward": "default",
         "observation": None,
-        "map_reset_scan": False,
+        "start_scan": "matcher",
         "shield": None,
     },
 )
@@ -91,7 +91,7 @@ def explore_spec(env_id: str = EXPLORE_ID, **wrapper_kwargs: Any) -> EnvSpec:
     Args:
         env_id: a registered exploration id.
         **wrapper_kwargs: ``slam_config``, ``reward``, ``observation``,
-            ``map_reset_scan``, ``shield`` (JSON-able values: preset names, mappings or
+            ``start_scan``, ``shield`` (JSON-able values: preset names, mappings or
             booleans).
 
     Raises:

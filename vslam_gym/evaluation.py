@@ -56,6 +56,7 @@ __all__ = [
     "ASSOCIATION_OUTCOMES",
     "CREATION_CAUSES",
     "NEES_PARTS",
+    "START_SCAN_MODES",
     "DecisionRecord",
     "EpisodeLog",
     "SeedsError",
@@ -64,6 +65,7 @@ __all__ = [
     "add_range_perturbation_argument",
     "association_precision",
     "check_range_perturbation",
+    "check_start_scan",
     "chi2_interval",
     "cmd_evaluate",
     "compound_precision",
@@ -94,6 +96,7 @@ __all__ = [
     "set_obstacles",
     "slam_config",
     "timing_summary",
+    "use_start_scan",
     "write_tum",
     "yaw_quaternion",
 ]
@@ -284,6 +287,44 @@ def check_range_perturbation(value: float) -> float:
     return float(value)
 
 
+START_SCAN_MODES = ("matcher", "map", "none")
+"""What a fresh filter does with the scan taken at its initial pose (:func:`use_start_scan`)."""
+
+
+def check_start_scan(mode: object) -> str:
+    """``mode`` if it is one of :data:`START_SCAN_MODES`, else ValueError naming it."""
+    if mode not in START_SCAN_MODES:
+        raise ValueError(f"start_scan must be one of {START_SCAN_MODES}, got {mode!r}")
+    return str(mode)
+
+
+def use_start_scan(slam: VertexSLAM, mode: str, ranges, bearings) -> Belief:
+    """Give a fresh filter the scan taken at its initial pose; the belief after it.
+
+    ``mode`` (:data:`START_SCAN_MODES`):
+
+    - ``"matcher"`` (the default of :func:`run_episode` and the SLAM wrapper): the
+      whole-scan matcher's first keyframe (:meth:`VertexSLAM.add_start_scan`), so the
+      first step is aligned to the start pose; no landmark is made from it;
+    - ``"map"``: a step without motion, which makes landmarks from it too;
+    - ``"none"``: not used; the first scan the filter sees is the first step's (the
+      behaviour before session 33).
+
+    Measured (docs/measurements.md, "Session 33"): ``"matcher"`` better than ``"none"``
+    on every route and on the explorer; ``"map"`` as good on the explorer and ``curved``
+    but worse on ``single_landmark``.
+
+    Raises:
+        ValueError: an unknown ``mode``, or a malformed scan (nothing changes).
+    """
+    check_start_scan(mode)
+    if mode == "map":
+        return slam.step(np.zeros(3), ranges, bearings)
+    if mode == "matcher":
+        slam.add_start_scan(ranges, bearings)
+    return slam.belief
+
+
 def run_episode(
     world: str,
     seed: int,
@@ -292,6 +333,7 @@ def run_episode(
     progress: ProgressCallback | None = None,
     overrides: Mapping[str, Any] | None = None,
     range_perturbation: float = 0.0,
+    start_scan: str = "matcher",
 ) -> EpisodeLog:
     """Drive a world's route with SLAM in the loop and log truth and belief per step.
 
@@ -314,12 +356,16 @@ def run_episode(
             another sample of the same filter's round-off, which is how the spread of
             a configuration's figures is measured ("Accuracy and loop closing" in
             docs/status.md).
+        start_scan: what the filter does with the scan of ``reset``, taken at the start
+            pose (:func:`use_start_scan`: ``"matcher"``, ``"map"`` or ``"none"``); it is
+            not a step of the log.
 
     Returns:
         The episode log.
 
     Raises:
-        ValueError: an unknown world or preset, a world without a route, ``max_steps < 1``.
+        ValueError: an unknown world, preset or ``start_scan``, a world without a route,
+            ``max_steps < 1``.
     """
     from vslam_gym.control import RouteFollower
     from vslam_gym.env import LidarWorldEnv
@@ -327,6 +373,7 @@ def run_episode(
     if max_steps is not None and max_steps < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
     check_range_perturbation(range_perturbation)
+    check_start_scan(start_scan)
     range_scale = 1.0 + float(range_perturbation)
     limit = DEFAULT_STEP_LIMIT if max_steps is None else int(max_steps)
     env = LidarWorldEnv(world=world)
@@ -341,7 +388,10 @@ def run_episode(
     start = time.perf_counter()
     obs, info = env.reset(seed=seed)
     slam = VertexSLAM(sensor, config, initial_pose=info["pose"])
-    belief = slam.belief
+    ranges = obs["scan"]
+    if range_scale != 1.0:
+        ranges = np.asarray(ranges, dtype=float) * range_scale
+    belief = use_start_scan(slam, start_scan, ranges, info["bearings"])
     follower = RouteFollower(env.world.route)
     true_poses, odom_poses = [info["pose"]], [info["odom_pose"]]
     slam_poses, slam_covs = [belief.robot_pose], [belief.pose_cov]
@@ -1233,6 +1283,7 @@ def evaluate(
     overrides: Mapping[str, Any] | None = None,
     range_perturbation: float = 0.0,
     jobs: int = 1,
+    start_scan: str = "matcher",
 ) -> dict[str, Any]:
     """Run one episode per seed and write metrics, figures and trajectories.
 
@@ -1250,10 +1301,12 @@ def evaluate(
         jobs: episodes run at once, each in its own worker process (1: one after the
             other in this process). The metrics are the same for any ``jobs`` except
             the step times, which then include the episodes' competition for cores.
+        start_scan: what the filter does with the scan of ``reset``
+            (:func:`use_start_scan`).
 
     Returns:
         The content of ``out_dir/metrics.json``: ``world``, ``preset``, ``overrides``,
-        ``range_perturbation``, ``seeds``, ``machine``, ``per_seed`` (one
+        ``range_perturbation``, ``start_scan``, ``seeds``, ``machine``, ``per_seed`` (one
         :func:`episode_metrics` dict per seed), ``mean`` (:func:`mean_metrics`) and
         ``sem`` (its standard error over the seeds, :func:`sem_metrics`). NaN metrics are
         written as ``null``.
@@ -1265,18 +1318,30 @@ def evaluate(
         raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
     SlamConfig.from_dict({"preset": preset, **(overrides or {})})  # fail early
     range_perturbation = check_range_perturbation(range_perturbation)
+    start_scan = check_start_scan(start_scan)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if jobs > 1:
         calls = [
-            (world, s, preset, max_steps, None, dict(overrides or {}), range_perturbation)
+            (
+                world,
+                s,
+                preset,
+                max_steps,
+                None,
+                dict(overrides or {}),
+                range_perturbation,
+                start_scan,
+            )
             for s in seeds
         ]
         bar = progress_bar(len(seeds), f"{world} seeds", progress, unit="episode")
         logs = in_workers(run_episode, calls, jobs, bar)
     else:
         logs = (
-            _episode_with_bar(world, s, preset, max_steps, overrides, range_perturbation, progress)
+            _episode_with_bar(
+                world, s, preset, max_steps, overrides, range_perturbation, start_scan, progress
+            )
             for s in seeds
         )
     per_seed = []
@@ -1288,6 +1353,7 @@ def evaluate(
         "preset": preset,
         "overrides": dict(overrides or {}),
         "range_perturbation": range_perturbation,
+        "start_scan": start_scan,
         "seeds": seeds,
         "machine": machine_description(),
         "per_seed": per_seed,
@@ -1308,6 +1374,7 @@ def _episode_with_bar(
     max_steps: int | None,
     overrides: Mapping[str, Any] | None,
     range_perturbation: float,
+    start_scan: str,
     progress: bool,
 ) -> EpisodeLog:
     """:func:`run_episode` with a per-step progress bar (when ``progress``)."""
@@ -1326,6 +1393,7 @@ def _episode_with_bar(
             tick if bar is not None else None,
             overrides,
             range_perturbation,
+            start_scan,
         )
     finally:
         if bar is not None:
@@ -1436,6 +1504,8 @@ def format_table(metrics: Mapping[str, Any]) -> str:
         title += f" / --set {json.dumps(metrics['overrides'], separators=(',', ':'))}"
     if metrics.get("range_perturbation"):
         title += f" / --range-perturbation {metrics['range_perturbation']:g}"
+    if metrics.get("start_scan", "matcher") != "matcher":
+        title += f" / --start-scan {metrics['start_scan']}"
     rule = "-" * len(line(header))
     n_summary = 2 if sem else 1
     body, summary = rows[:-n_summary], rows[-n_summary:]
@@ -1598,6 +1668,14 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
         "--max-steps", type=int, default=None, help="step budget per seed (default: whole route)"
     )
     add_range_perturbation_argument(parser)
+    parser.add_argument(
+        "--start-scan",
+        choices=START_SCAN_MODES,
+        default="matcher",
+        help="what the filter does with the scan taken at the start pose: the whole-scan "
+        "matcher's first keyframe (default), a step of its own that makes landmarks "
+        "('map'), or nothing ('none', before session 33)",
+    )
     add_jobs_argument(parser, "episodes")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=cmd_evaluate)
@@ -1618,6 +1696,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         overrides=args.overrides,
         range_perturbation=args.range_perturbation,
         jobs=args.jobs,
+        start_scan=args.start_scan,
     )
     print(format_table(metrics))
     print(

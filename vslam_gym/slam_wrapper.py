@@ -23,7 +23,7 @@ from vslam_gym.belief_observation import (
 from vslam_gym.belief_reward import BeliefReward, BeliefRewardConfig
 from vslam_gym.config_utils import dataclass_from_dict
 from vslam_gym.env import LidarWorldEnv
-from vslam_gym.evaluation import sensor_from_lidar, slam_config
+from vslam_gym.evaluation import check_start_scan, sensor_from_lidar, slam_config, use_start_scan
 from vslam_gym.shield import ShieldConfig, SpeedShield
 from vslam_gym.slam.filter import Belief, SlamConfig, VertexSLAM
 
@@ -118,11 +118,13 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     ``reset`` resets the wrapped environment (a new world for ``world="random"``) and
     starts a fresh filter, with an empty map, at the world's start pose (this defines
-    the map frame). The scan returned by ``reset`` is in the observation; the filter
-    maps it only with ``map_reset_scan=True`` (that costs one SLAM step in ``reset``;
-    by default the first mapped scan is the first step's, 0.1 s later; mapping the
-    reset scan measured no better, docs/measurements.md, "Mapping the scan at the
-    start pose").
+    the map frame). The scan returned by ``reset`` is in the observation and, by
+    default (``start_scan="matcher"``), the whole-scan matcher's first keyframe, so the
+    first step is aligned to the start pose (no landmark is made from it; the map
+    stays empty until the first step). ``"map"`` runs the filter on it as a step
+    without motion (landmarks too; one SLAM step more in ``reset``), ``"none"`` ignores
+    it (the behaviour before session 33). Measured in docs/measurements.md, "Session
+    33": ``"matcher"`` maps the held-out random worlds with a third less position error.
 
     ## Episode End
 
@@ -139,7 +141,8 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     |               |             | ``"fast"`` trades accuracy for 2-3x the throughput    |
     | `reward`      | `"default"` | preset name, mapping of weights or config             |
     | `observation` | `None`      | mapping of ``BeliefObservationConfig`` fields         |
-    | `map_reset_scan` | `False`  | run the filter on the scan of ``reset`` too           |
+    | `start_scan`  | `"matcher"` | the scan of ``reset``: ``"matcher"``, ``"map"`` or    |
+    |               |             | ``"none"`` (see Starting State)                      |
     | `shield`      | `None`      | ``None``/``False``: off; ``True``, a mapping of       |
     |               |             | ``ShieldConfig`` fields or a ``ShieldConfig``: cap    |
     |               |             | forward speed by the scan's free corridor             |
@@ -156,7 +159,9 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     ## Version History
 
     - v0: initial version (the optional ``frontier`` key and ``shield`` were added
-      before the first release, 2026-11-25).
+      before the first release, 2026-11-25; ``start_scan`` replaced the boolean
+      ``map_reset_scan``, whose ``True`` is ``"map"`` and ``False`` ``"none"``, in
+      session 33).
     """
 
     def __init__(
@@ -165,7 +170,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         slam_config: str | SlamConfig | Mapping[str, Any] = "default",
         reward: str | BeliefRewardConfig | Mapping[str, Any] = "default",
         observation: BeliefObservationConfig | Mapping[str, Any] | None = None,
-        map_reset_scan: bool = False,
+        start_scan: str = "matcher",
         shield: ShieldConfig | Mapping[str, Any] | bool | None = None,
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
@@ -173,7 +178,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             slam_config=slam_config,
             reward=reward,
             observation=observation,
-            map_reset_scan=map_reset_scan,
+            start_scan=start_scan,
             shield=shield,
         )
         gym.Wrapper.__init__(self, env)
@@ -183,7 +188,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 f"SlamWrapper needs a LidarWorldEnv underneath, got {type(base).__name__}"
             )
         self._base: LidarWorldEnv = base
-        self.map_reset_scan = bool(map_reset_scan)
+        self.start_scan = check_start_scan(start_scan)
         self._slam_base = _slam_config(slam_config)
         self.reward_config = BeliefRewardConfig.from_any(reward)
         if observation is None:
@@ -244,10 +249,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         alphas = base._odometry_alphas or tuple(base.world.odometry.alphas)
         config = slam_config(self._slam_base, alphas)
         self._slam = VertexSLAM(self.sensor, config, initial_pose=base.world.robot.start)
-        if self.map_reset_scan:
-            self._belief = self._slam.step(np.zeros(3), obs["scan"], info["bearings"])
-        else:
-            self._belief = self._slam.belief
+        self._belief = use_start_scan(self._slam, self.start_scan, obs["scan"], info["bearings"])
         self._steps_since_association = 0
         if self.shield_config is not None:
             robot = base.world.robot

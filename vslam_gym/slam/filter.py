@@ -763,6 +763,40 @@ class VertexSLAM:
             object_vertices=lm.object_vertices,
         )
 
+    def add_start_scan(self, ranges, bearings) -> bool:
+        """Give the whole-scan matcher the scan taken at the initial pose, before the first step.
+
+        The scan becomes the matcher's first keyframe, placed at the initial pose: the
+        first step's scan is then aligned to it, so the map frame is the start pose's
+        exactly. Without it the first keyframe is the first step's scan at the pose the
+        odometry predicts, and its heading error (up to a degree) rotates everything
+        mapped after it (docs/measurements.md, "Session 33"). No landmark is made from
+        it: the landmarks come from the first step on, at the matched pose (mapping it as
+        a step of its own, ``step([0, 0, 0], ranges, bearings)``, measured worse on
+        ``single_landmark``). Nothing happens without a whole-scan matcher
+        (``FilterConfig.prealign="none"``, the ``thesis`` and ``fast`` presets).
+
+        Args:
+            ranges: ``(n,)`` ranges [m] of the scan taken at the initial pose.
+            bearings: ``(n,)`` its bearings [rad] in the lidar frame, strictly descending.
+
+        Returns:
+            Whether the matcher keeps the scan (False without a matcher).
+
+        Raises:
+            ValueError: a malformed scan (``ScanError``), or the filter has stepped or
+                already has a start scan; nothing changes.
+        """
+        scan = Scan.from_arrays(ranges, bearings, self.sensor)
+        if self._step > 0 or len(self._local_map):
+            raise ValueError("add_start_scan: only once, before the first step")
+        if self.config.filter.prealign == "none":
+            return False
+        points = scan_points(scan.ranges, scan.bearings, scan.max_range)
+        normals = scan_normals(points, self.config.matcher)
+        self._local_map.add(points, self._matcher_pose, normals)
+        return True
+
     def step(self, odometry, ranges, bearings) -> Belief:
         """One motion and measurement update.
 
