@@ -771,12 +771,13 @@ class VertexSLAM:
         The scan becomes the matcher's first keyframe, placed at the initial pose: the
         first step's scan is then aligned to it, so the map frame is the start pose's
         exactly. Without it the first keyframe is the first step's scan at the pose the
-        odometry predicts, and its heading error (up to a degree) rotates everything
-        mapped after it (docs/measurements.md, "Session 33"). No landmark is made from
-        it: the landmarks come from the first step on, at the matched pose (mapping it as
-        a step of its own, ``step([0, 0, 0], ranges, bearings)``, measured worse on
-        ``single_landmark``). Nothing happens without a whole-scan matcher
-        (``FilterConfig.prealign="none"``, the ``thesis`` and ``fast`` presets).
+        odometry predicts, and its heading error (up to 1.4 degrees on the routes)
+        rotates everything mapped after it (docs/measurements.md, "Session 33"). No
+        landmark is made from it: the landmarks come from the first step on, at the
+        matched pose (mapping it as a step of its own, ``step([0, 0, 0], ranges,
+        bearings)``, measured worse on ``single_landmark``). Nothing happens without a
+        whole-scan matcher (``FilterConfig.prealign="none"``, the ``thesis`` and
+        ``fast`` presets).
 
         Args:
             ranges: ``(n,)`` ranges [m] of the scan taken at the initial pose.
