@@ -275,6 +275,17 @@ def test_evaluate_writes_files_and_repeats_exactly(tmp_path: Path) -> None:
     assert strip(second["per_episode"]) == strip(first["per_episode"])
     csv_a = (tmp_path / "a" / "steps.csv").read_text()
     assert (tmp_path / "b" / "steps.csv").read_text() == csv_a
+    assert first["start_scan"] == "registered"
+
+    # --start-scan none: the same paths (random actions), another belief
+    args_none = [*args[:-1], "--start-scan", "none", "--out", str(tmp_path / "c")]
+    assert main(args_none) == 0
+    ignored = json.loads((tmp_path / "c" / "metrics.json").read_text())
+    assert ignored["start_scan"] == "none"
+    with open(tmp_path / "c" / "steps.csv") as f:
+        rows_none = list(csv.DictReader(f))
+    assert [r["true_x"] for r in rows_none] == [r["true_x"] for r in rows]
+    assert [r["slam_x"] for r in rows_none] != [r["slam_x"] for r in rows]
 
 
 def test_a_model_with_predict_is_an_agent() -> None:
