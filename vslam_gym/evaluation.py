@@ -388,10 +388,12 @@ def run_episode(
     start = time.perf_counter()
     obs, info = env.reset(seed=seed)
     slam = VertexSLAM(sensor, config, initial_pose=info["pose"])
-    ranges = obs["scan"]
-    if range_scale != 1.0:
-        ranges = np.asarray(ranges, dtype=float) * range_scale
-    belief = use_start_scan(slam, start_scan, ranges, info["bearings"])
+
+    def filter_ranges(scan: np.ndarray) -> np.ndarray:
+        """The ranges the filter gets (``range_perturbation``)."""
+        return scan if range_scale == 1.0 else np.asarray(scan, dtype=float) * range_scale
+
+    belief = use_start_scan(slam, start_scan, filter_ranges(obs["scan"]), info["bearings"])
     follower = RouteFollower(env.world.route)
     true_poses, odom_poses = [info["pose"]], [info["odom_pose"]]
     slam_poses, slam_covs = [belief.robot_pose], [belief.pose_cov]
@@ -405,10 +407,7 @@ def run_episode(
             if follower.done:
                 break
             obs, _, terminated, _, info = env.step(action)
-            ranges = obs["scan"]
-            if range_scale != 1.0:
-                ranges = np.asarray(ranges, dtype=float) * range_scale
-            belief = slam.step(obs["odometry"], ranges, info["bearings"])
+            belief = slam.step(obs["odometry"], filter_ranges(obs["scan"]), info["bearings"])
             true_poses.append(info["pose"])
             odom_poses.append(info["odom_pose"])
             slam_poses.append(belief.robot_pose)

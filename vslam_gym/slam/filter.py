@@ -795,9 +795,7 @@ class VertexSLAM:
             raise ValueError("add_start_scan: only once, before the first step")
         if self.config.filter.prealign == "none":
             return False
-        points = scan_points(scan.ranges, scan.bearings, scan.max_range)
-        normals = scan_normals(points, self.config.matcher)
-        self._local_map.add(points, self._matcher_pose, normals)
+        self._add_keyframe(scan_points(scan.ranges, scan.bearings, scan.max_range))
         return True
 
     def step(self, odometry, ranges, bearings) -> Belief:
@@ -1007,10 +1005,17 @@ class VertexSLAM:
             self._error = relative_motion_update(self._mu, self._error, delta, cov)[1]
         self._mu, self._sigma = relative_motion_update(self._mu, self._sigma, delta, cov)
         self._matcher_pose = compose(self._matcher_pose, delta)
+        self._add_keyframe(points)
+        return result is not None
+
+    def _add_keyframe(self, points: np.ndarray) -> None:
+        """Add the scan's lidar-frame ``points`` to the local map at the matcher's pose.
+
+        Only when that pose makes a keyframe (``ScanMatcherConfig.keyframe_distance``).
+        """
         if self._local_map.is_keyframe(self._matcher_pose):
             self._normals = scan_normals(points, self.config.matcher)
             self._local_map.add(points, self._matcher_pose, self._normals)
-        return result is not None
 
     def _fuse_match(self, points: np.ndarray) -> bool:
         """``prealign="fuse"``: the aligned pose as a direct measurement of the pose."""
