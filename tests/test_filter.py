@@ -269,15 +269,23 @@ def test_near_distance_widens_with_the_pose_uncertainty_to_close_the_loop():
     # landmarks any more and model them again, and the loop stays open. Odometry-driven
     # motion (the default's scan-matched motion drifts too little here to show it), and
     # alignments that run their course (with the default's stop at 3 times the gate the
-    # fixed distance loses less: 0.037 against 0.024 m).
+    # fixed distance loses less: 0.037 against 0.024 m). Which seed drifts that far
+    # depends on the machine's round-off (seed 0 on session 33's machine, seed 2 on
+    # session 34's: there seeds 0 and 1 close the loop either way), so three seeds: the
+    # widened distance closes every loop, the fixed one leaves at least one open.
     odometry = {"prealign": "none", "icp_stop_beyond_gate": 0.0}
     fixed = SlamConfig.from_dict({"filter": {**odometry, "candidate_near_sigma": 0.0}})
-    _, beliefs_fixed, _, true = run(fixed)
-    _, beliefs, _, _ = run(SlamConfig.from_dict({"filter": odometry}))
-    err_fixed = np.hypot(*(beliefs_fixed[-1].pose[:2] - true[-1, :2]))
-    err = np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2]))
-    assert len(beliefs_fixed[-1].landmarks) > len(beliefs[-1].landmarks)
-    assert err_fixed > 2.0 * err and err < 0.15, (err_fixed, err)
+    opened = []
+    for seed in range(3):
+        _, beliefs_fixed, _, true = run(fixed, seed=seed)
+        _, beliefs, _, _ = run(SlamConfig.from_dict({"filter": odometry}), seed=seed)
+        err_fixed = np.hypot(*(beliefs_fixed[-1].pose[:2] - true[-1, :2]))
+        err = np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2]))
+        assert err < 0.15, (seed, err)
+        assert len(beliefs_fixed[-1].landmarks) >= len(beliefs[-1].landmarks), seed
+        if err_fixed > 2.0 * err + 0.1:  # the loop left open, with landmarks made again
+            opened.append(len(beliefs_fixed[-1].landmarks) > len(beliefs[-1].landmarks))
+    assert opened and all(opened), opened
 
 
 def reference_median_distance(points, model):
