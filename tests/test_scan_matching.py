@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from _raycast import bearings_deg, cast, polygon_edges
 
+from vslam_gym.slam.filter import SlamConfig
 from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.scan_matching import (
     LocalMap,
@@ -140,7 +141,7 @@ def test_declines_with_an_empty_map_and_rejects_bad_input():
 
 def test_normals_are_perpendicular_to_a_wall_and_keyframes_are_bounded():
     pts = _points(np.array([0.0, 0.0, 0.0]), CORRIDOR, 0)
-    normals, valid = scan_normals(pts, ScanMatcherConfig())
+    normals, valid, _ = scan_normals(pts, ScanMatcherConfig())
     assert valid.mean() > 0.7  # far beams are more than normal_max_gap apart
     assert np.all(np.abs(normals[valid, 0]) < 0.1)  # walls along x: normals along y
     local = LocalMap(ScanMatcherConfig(keyframes=2))
@@ -152,8 +153,10 @@ def test_normals_are_perpendicular_to_a_wall_and_keyframes_are_bounded():
 def test_normals_match_a_per_point_fit_and_can_be_passed_to_the_map():
     config = ScanMatcherConfig()
     pts = _points(np.array([1.0, 0.5, 0.3]), L_ROOM, 3)
-    normals, valid = scan_normals(pts, config)
+    fit = scan_normals(pts, config)
+    normals, valid, offsets = fit
     assert 0.5 < valid.mean() < 1.0
+    assert np.all(normals[~valid] == 0.0) and np.all(offsets[~valid] == 0.0)
     # each valid normal is the first window (of normal_half_windows) that qualifies
     for i in np.flatnonzero(valid)[::7]:
         for w in config.normal_half_windows:
@@ -166,13 +169,60 @@ def test_normals_match_a_per_point_fit_and_can_be_passed_to_the_map():
             if near and wide and spread[0] <= config.normal_max_flatness * spread[1]:
                 _, vectors = np.linalg.eigh(np.cov(patch.T, bias=True))
                 assert abs(abs(vectors[:, 0] @ normals[i]) - 1.0) < 1e-9
+                # the offset is the point's from the parabola fitted to the patch in
+                # the patch's line frame (u along the line, v along the normal)
+                tangent = np.array([normals[i, 1], -normals[i, 0]])
+                frame = np.column_stack([tangent, normals[i]])
+                u, v = ((patch - patch.mean(axis=0)) @ frame).T
+                parabola = np.polyfit(u, v, 2)
+                assert abs(offsets[i] - (v[w] - np.polyval(parabola, u[w]))) < 1e-9
                 break
     # normals computed once and passed in build the same keyframe
     a, b = LocalMap(config), LocalMap(config)
     pose = np.array([0.2, -0.1, 0.4])
-    assert a.add(pts, pose) and b.add(pts, pose, (normals, valid))
+    assert a.add(pts, pose) and b.add(pts, pose, fit)
     for x, y in zip(a.reference()[1:], b.reference()[1:], strict=True):
         assert np.array_equal(x, y)
+
+
+def test_offsets_vanish_on_a_noise_free_arc():
+    """A round obstacle's returns lie on its parabola: no offset (a line would leave one)."""
+    angles = np.linspace(np.pi - 0.6, np.pi + 0.6, 40)  # radius 1 m, centre 3 m ahead
+    arc = np.column_stack([3.0 + np.cos(angles), np.sin(angles)])
+    fit = scan_normals(arc, ScanMatcherConfig())
+    assert fit.valid.sum() > 20
+    assert np.abs(fit.offsets[fit.valid]).max() < 1e-4  # sagitta share of a line: ~1 cm
+
+
+def test_fitted_keyframe_points_lie_closer_to_the_wall():
+    """``fit_keyframe_points``: each kept point moves onto its patch's line, the noise
+    across the wall shrinks, and nothing else of the keyframe changes."""
+    rng = np.random.default_rng(7)
+    r = cast(np.zeros(3), CORRIDOR, BEARINGS, MAX_RANGE, sigma_range=0.03, rng=rng)
+    pts = scan_points(r, BEARINGS, MAX_RANGE)
+    raw, fitted = (
+        LocalMap(ScanMatcherConfig()),
+        LocalMap(ScanMatcherConfig(fit_keyframe_points=True)),
+    )
+    pose = np.array([0.5, 0.0, 0.0])
+    assert raw.add(pts, pose) and fitted.add(pts, pose)
+    raw_ref, fitted_ref = raw.reference(), fitted.reference()
+    assert np.array_equal(raw_ref.normals, fitted_ref.normals)
+    # the walls are y = +-1.5: distance of each kept point from its wall
+    across_raw = np.abs(np.abs(raw_ref.points[:, 1]) - 1.5)
+    across_fitted = np.abs(np.abs(fitted_ref.points[:, 1]) - 1.5)
+    assert raw_ref.points.shape == fitted_ref.points.shape
+    assert np.sqrt(np.mean(across_fitted**2)) < 0.6 * np.sqrt(np.mean(across_raw**2))
+    # moved only across the wall (along its normal)
+    moved = fitted_ref.points - raw_ref.points
+    assert np.allclose(
+        moved[:, 0] * fitted_ref.normals[:, 1], moved[:, 1] * fitted_ref.normals[:, 0]
+    )
+    with pytest.raises(ValueError, match="fit_keyframe_points"):
+        ScanMatcherConfig(fit_keyframe_points=1)
+    # the filter's configuration takes it (off in every preset)
+    on = SlamConfig.from_dict({"matcher": {"fit_keyframe_points": True}})
+    assert on.matcher.fit_keyframe_points and not SlamConfig().matcher.fit_keyframe_points
 
 
 def test_keyframes_by_motion_and_older_keyframes_near_the_prior():

@@ -80,6 +80,7 @@ from vslam_gym.slam.scan import Scan
 from vslam_gym.slam.scan_matching import (
     LocalMap,
     ScanMatcherConfig,
+    ScanNormals,
     match_scan,
     scan_normals,
     scan_points,
@@ -709,7 +710,7 @@ class VertexSLAM:
         # since the last match.
         self._pending: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._pending_error: np.ndarray | None = None  # the error covariance's pose rows then
-        self._normals: tuple[np.ndarray, np.ndarray] | None = None  # the step's scan normals
+        self._normals: ScanNormals | None = None  # the step's scan normals
         self._loop = self._make_loop_closure()
         self._loop_closed = False
         self._prealigned = False

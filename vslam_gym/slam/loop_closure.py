@@ -42,6 +42,7 @@ from vslam_gym.slam.scan_matching import (
     LocalMap,
     MatchResult,
     ScanMatcherConfig,
+    ScanNormals,
     distinct_poses,
     local_fit,
     match_scan,
@@ -90,7 +91,7 @@ class RevisitKeyframes(LocalMap):
         pose: np.ndarray,
         cov: np.ndarray,
         stamp: int,
-        normals: tuple[np.ndarray, np.ndarray] | None = None,
+        normals: ScanNormals | None = None,
     ) -> bool:
         """Add a scan's lidar-frame points ``(m, 2)`` seen from ``pose`` (cov ``(3, 3)``).
 
@@ -376,7 +377,7 @@ class LoopClosure:
         pose: np.ndarray,
         cov: np.ndarray,
         now: int,
-        normals: tuple[np.ndarray, np.ndarray] | None = None,
+        normals: ScanNormals | None = None,
     ) -> bool:
         """Keep the scan as a keyframe at the updated ``pose`` (cov ``(3, 3)``).
 
