@@ -151,12 +151,17 @@ def test_normals_are_perpendicular_to_a_wall_and_keyframes_are_bounded():
 
 
 def test_normals_match_a_per_point_fit_and_can_be_passed_to_the_map():
-    config = ScanMatcherConfig()
+    config = ScanMatcherConfig(fit_keyframe_points=True)  # with the offsets
     pts = _points(np.array([1.0, 0.5, 0.3]), L_ROOM, 3)
     fit = scan_normals(pts, config)
     normals, valid, offsets = fit
     assert 0.5 < valid.mean() < 1.0
     assert np.all(normals[~valid] == 0.0) and np.all(offsets[~valid] == 0.0)
+    assert np.abs(offsets[valid]).max() > 0.0
+    # the same normals without the option, and no offsets
+    plain = scan_normals(pts, ScanMatcherConfig())
+    assert np.array_equal(plain.normals, normals) and np.array_equal(plain.valid, valid)
+    assert not plain.offsets.any()
     # each valid normal is the first window (of normal_half_windows) that qualifies
     for i in np.flatnonzero(valid)[::7]:
         for w in config.normal_half_windows:
@@ -189,14 +194,14 @@ def test_offsets_vanish_on_a_noise_free_arc():
     """A round obstacle's returns lie on its parabola: no offset (a line would leave one)."""
     angles = np.linspace(np.pi - 0.6, np.pi + 0.6, 40)  # radius 1 m, centre 3 m ahead
     arc = np.column_stack([3.0 + np.cos(angles), np.sin(angles)])
-    fit = scan_normals(arc, ScanMatcherConfig())
+    fit = scan_normals(arc, ScanMatcherConfig(fit_keyframe_points=True))
     assert fit.valid.sum() > 20
     assert np.abs(fit.offsets[fit.valid]).max() < 1e-4  # sagitta share of a line: ~1 cm
 
 
 def test_fitted_keyframe_points_lie_closer_to_the_wall():
-    """``fit_keyframe_points``: each kept point moves onto its patch's line, the noise
-    across the wall shrinks, and nothing else of the keyframe changes."""
+    """``fit_keyframe_points``: each kept point moves onto its patch's parabola, the
+    noise across the wall shrinks, and nothing else of the keyframe changes."""
     rng = np.random.default_rng(7)
     r = cast(np.zeros(3), CORRIDOR, BEARINGS, MAX_RANGE, sigma_range=0.03, rng=rng)
     pts = scan_points(r, BEARINGS, MAX_RANGE)

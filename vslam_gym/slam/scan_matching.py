@@ -357,14 +357,16 @@ def scan_points(ranges: np.ndarray, bearings: np.ndarray, max_range: float) -> n
 
 
 class ScanNormals(NamedTuple):
-    """A scan's surface normals and each point's offset from its fitted line.
+    """A scan's surface normals and each point's offset from the curve fitted to its patch.
 
     Attributes:
         normals: ``(m, 2)`` unit normals, lidar frame; zero where not ``valid``.
         valid: ``(m,)`` bool, the point has a normal.
         offsets: ``(m,)`` signed distance [m] of each point, along its normal, from
             the parabola fitted to its patch in the patch's line frame (0 where not
-            ``valid``): ``point - offset * normal`` lies on that curve.
+            ``valid``): ``point - offset * normal`` lies on that curve. Computed only
+            with ``ScanMatcherConfig.fit_keyframe_points`` (it doubles the time of
+            :func:`scan_normals`); all zero otherwise.
     """
 
     normals: np.ndarray
@@ -378,13 +380,13 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> ScanNormals:
     Each point tries the half-windows of ``normal_half_windows`` in order and keeps the
     first patch that is wide enough (``normal_min_extent``: dense beams near the lidar
     need more of them, or the range noise tilts the normal), close enough
-    (``normal_max_radius``) and straight enough (``normal_max_flatness``). A parabola
-    fitted to that patch in its line frame gives the point's offset across the surface
-    (``ScanMatcherConfig.fit_keyframe_points``).
+    (``normal_max_radius``) and straight enough (``normal_max_flatness``). With
+    ``fit_keyframe_points`` a parabola fitted to that patch in its line frame also gives
+    the point's offset across the surface.
 
     Args:
         points: ``(m, 2)`` points [m] in beam order.
-        config: the ``normal_*`` parameters.
+        config: the ``normal_*`` parameters and ``fit_keyframe_points``.
 
     Returns:
         :class:`ScanNormals` ``(normals (m, 2), valid (m,), offsets (m,))``; invalid rows
@@ -423,7 +425,8 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> ScanNormals:
         found = rows[ok]
         normals[found] = stack_last(-np.sin(direction), np.cos(direction))
         valid[found] = True
-        offsets[found] = _offsets_from_patch_curves(d[:, ok], normals[found], w)
+        if config.fit_keyframe_points:
+            offsets[found] = _offsets_from_patch_curves(d[:, ok], normals[found], w)
     return ScanNormals(normals, valid, offsets)
 
 
@@ -541,7 +544,7 @@ class LocalMap:
         """Add a scan's lidar-frame points ``(m, 2)`` [m] seen from ``pose`` (map frame).
 
         Only the points with a normal are kept; with ``config.fit_keyframe_points`` each
-        is moved onto the line fitted to its patch.
+        is moved onto the parabola fitted to its patch (:class:`ScanNormals`).
 
         Args:
             points: ``(m, 2)`` the scan's returns in the lidar frame [m], beam order.
