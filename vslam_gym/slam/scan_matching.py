@@ -550,8 +550,8 @@ class LocalMap:
             points: ``(m, 2)`` the scan's returns in the lidar frame [m], beam order.
             pose: ``(3,)`` the lidar pose in the map frame.
             normals: ``scan_normals(points, config)`` when the caller has it already
-                (same ``normal_*`` parameters as this map's config); None: computed here,
-                only when the scan becomes a keyframe.
+                (same ``normal_*`` and ``fit_keyframe_points`` as this map's config);
+                None: computed here, only when the scan becomes a keyframe.
 
         Returns whether it became a keyframe.
         """
