@@ -408,8 +408,7 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> ScanNormals:
         nb = np.take(points, np.arange(-w, w + 1)[:, None] + rows[None, :], axis=0)
         offset = nb - points[rows]
         close = (np.hypot(offset[..., 0], offset[..., 1]) <= config.normal_max_radius).all(axis=0)
-        mean = nb.sum(axis=0) / size  # (r, 2); as sum / size: np.mean's steps
-        d = nb - mean
+        d = nb - nb.sum(axis=0) / size  # means as sum / size: np.mean's steps
         dx, dy = d[..., 0].T, d[..., 1].T  # (r, 2w+1)
         # The moments sum each row of a C-ordered (r, 2w+1) array (numpy's pairwise sum).
         cxx = np.square(dx, order="C").sum(axis=1) / size
