@@ -84,6 +84,7 @@ def replay(
     config: SlamConfig | None = None,
     overrides: Mapping[str, Any] | None = None,
     range_perturbation: float = 0.0,
+    bearing_offset_deg: float = 0.0,
 ) -> dict[str, Any]:
     """Feed a log to :class:`VertexSLAM` scan by scan; return the metrics and trajectories.
 
@@ -96,15 +97,17 @@ def replay(
     by ``1 + this`` (at most ``MAX_RANGE_PERTURBATION``, as in ``vslam-gym evaluate``):
     ``1e-15`` changes the last bit of some ranges, so the run is another sample of the
     same filter's round-off (one run of a log is one draw of it).
+    ``bearing_offset_deg`` is added to every bearing of the log
+    (``CarmenConfig.bearing_offset_deg``; 0 for the Radish logs).
 
     Returns:
         A dict with ``metrics`` (``scans``, ``completed``, ``ate_rmse_m``,
         ``odom_ate_rmse_m``, ``final_error_m``, ``heading_rmse_rad``, ``landmarks``,
         ``step_ms_median``, ``step_ms_p95``, ``step_ms_parts`` (per part of a step,
         ``Belief.step_ms_parts``: its ``median`` and ``mean`` over the scans [ms]),
-        ``prealign``, ``prealigned_fraction`` (steps
-        that used the whole-scan match), ``range_perturbation``, ``sensor`` (the lidar
-        model: FOV and resolution from the log's bearings, maximum range, noise, offset),
+        ``prealign``, ``prealigned_fraction`` (steps that used the whole-scan match),
+        ``range_perturbation``, ``bearing_offset_deg``, ``sensor`` (the lidar model: FOV
+        and resolution from the log's bearings, maximum range, noise, offset),
         ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``),
         ``error`` when not completed) and the ``true``, ``odometry`` and ``slam`` pose
         arrays ``(T, 3)``, ``times`` and the final ``belief``.
@@ -121,7 +124,9 @@ def replay(
         raise ValueError("give either config or overrides, not both")
     if overrides:
         config = SlamConfig.from_dict({"preset": preset, **overrides})
-    log = read_carmen(path, CarmenConfig(max_range=max_range))
+    log = read_carmen(
+        path, CarmenConfig(max_range=max_range, bearing_offset_deg=bearing_offset_deg)
+    )
     n = log.num_scans if max_scans is None else min(log.num_scans, int(max_scans))
     if odometry == "logged":
         increments = logged_increments(log)[: n - 1]
@@ -185,6 +190,7 @@ def replay(
         "prealign": config.filter.prealign,
         "prealigned_fraction": prealigned / max(len(step_ms), 1),
         "range_perturbation": float(range_perturbation),
+        "bearing_offset_deg": float(bearing_offset_deg),
         "sensor": {
             "fov_deg": sensor.fov_deg,
             "resolution_deg": sensor.resolution_deg,
@@ -301,6 +307,14 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
         default=DEFAULT_SIGMA_BEARING_DEG,
         help="bearing noise standard deviation of the lidar [deg] (default %(default)s)",
     )
+    parser.add_argument(
+        "--bearing-offset-deg",
+        type=float,
+        default=0.0,
+        help="added to every beam's bearing [deg] (CarmenConfig.bearing_offset_deg): for a "
+        "log whose lidar convention is not Carmen's; benchmarks/log_bearing_check.py tells "
+        "it from the log's poses (default %(default)s, right for the Radish logs)",
+    )
     add_range_perturbation_argument(parser)
     add_jobs_argument(parser, "seeds")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -383,6 +397,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         prealign=args.prealign,
         overrides=args.overrides,
         range_perturbation=args.range_perturbation,
+        bearing_offset_deg=args.bearing_offset_deg,
     )
     out = Path(args.out)
     if len(seeds) == 1:

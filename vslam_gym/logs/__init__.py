@@ -1,5 +1,6 @@
 """Readers for recorded 2-D lidar robot logs, to run the estimator outside the simulator."""
 
+from vslam_gym.logs.bearing_check import bearing_offset_scores
 from vslam_gym.logs.carmen import (
     CarmenConfig,
     CarmenFormatError,
@@ -14,6 +15,7 @@ __all__ = [
     "CarmenConfig",
     "CarmenFormatError",
     "CarmenLog",
+    "bearing_offset_scores",
     "integrate_increments",
     "logged_increments",
     "read_carmen",

@@ -91,12 +91,20 @@ class CarmenConfig:
             the no-return threshold itself.
         resolution_deg: angle between adjacent beams [deg] when the log has no
             ``laser_front_laser_resolution`` ``PARAM``.
+        bearing_offset_deg: added to every beam's bearing [deg]: Carmen's convention
+            (first beam at ``-fov/2``: ``-90 .. +89 deg`` for 180 beams at 1 deg) is not
+            every logger's (``+0.5``: beams centred on ``-89.5 .. +89.5``; ``+1``: the
+            first of 181 dropped), and a lidar mounted turned by a small angle shows
+            the same way. :func:`vslam_gym.logs.bearing_check.bearing_offset_scores`
+            tells it from the log's reference poses (the Radish logs: 0, docs/radish.md,
+            "The bearing convention").
     """
 
     no_return_fraction: float = 0.999
     no_return_threshold: float | None = None
     max_range: float | None = None
     resolution_deg: float = 1.0
+    bearing_offset_deg: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.no_return_fraction) and 0 < self.no_return_fraction <= 1):
@@ -108,6 +116,10 @@ class CarmenConfig:
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value > 0):
                 raise ValueError(f"CarmenConfig.{name} must be finite and > 0, got {value!r}")
+        if not math.isfinite(self.bearing_offset_deg):
+            raise ValueError(
+                f"CarmenConfig.bearing_offset_deg must be finite, got {self.bearing_offset_deg!r}"
+            )
 
 
 @dataclass
@@ -221,11 +233,11 @@ def _bearings(num_beams: int, params: dict[str, str], config: CarmenConfig) -> n
     Carmen beam ``i`` has bearing ``-fov/2 + i * res`` with ``res`` from the
     ``laser_front_laser_resolution`` ``PARAM`` (else ``config.resolution_deg``) and
     ``fov`` from ``laser_front_laser_fov`` (else ``n * res``): 180 beams at 1 deg give
-    ``-90 .. +89 deg``.
+    ``-90 .. +89 deg``; ``config.bearing_offset_deg`` is added to every one.
     """
     res = float(params.get(PARAM_RESOLUTION, config.resolution_deg))
     fov = float(params.get(PARAM_FOV, num_beams * res))
-    carmen = np.deg2rad(-fov / 2.0 + res * np.arange(num_beams))
+    carmen = np.deg2rad(-fov / 2.0 + config.bearing_offset_deg + res * np.arange(num_beams))
     return carmen[::-1].copy()
 
 

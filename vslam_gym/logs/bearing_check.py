@@ -1,0 +1,119 @@
+"""Which bearing convention a log's scans share with its reference poses.
+
+A uniform offset of every bearing (a logger's convention for where the first beam points,
+or a lidar mounted turned by a small angle) cannot be seen in the scans alone: it turns
+every scan alike. It shows against poses measured otherwise. Move scan ``k + lag`` into
+scan ``k``'s frame by the log's reference poses: when the bearings are right the two
+scans overlap; with an offset ``d`` the relative translation ``t`` between them seems
+turned by ``d`` and the scans are about ``d |t|`` apart across their surfaces (measured
+point to line, as the whole-scan matcher does: point to point, the beam spacing would
+hide it). :func:`bearing_offset_scores`
+measures that overlap for a list of candidate offsets; the best is the offset the
+reference poses were made with (for :class:`~vslam_gym.logs.carmen.CarmenConfig`'s
+``bearing_offset_deg``). Measured on the Radish logs in docs/radish.md ("The bearing
+convention").
+
+Frames and units: the log's world frame; distances [m]; offsets [deg] added to the
+log's bearings (counter-clockwise). numpy/scipy only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vslam_gym.logs.carmen import CarmenLog
+from vslam_gym.slam.motion import compose, inverse
+from vslam_gym.slam.scan_matching import ScanMatcherConfig, scan_normals
+
+__all__ = ["DEFAULT_OFFSETS_DEG", "bearing_offset_scores"]
+
+DEFAULT_OFFSETS_DEG = (-1.0, -0.5, 0.0, 0.5, 1.0)
+"""Candidate offsets [deg]: Carmen's convention and half and whole beams either way."""
+
+
+def _points(ranges: np.ndarray, bearings: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``(m, 2)`` lidar-frame points [m] of the kept beams."""
+    r, b = ranges[keep], bearings[keep]
+    return np.stack([r * np.cos(b), r * np.sin(b)], axis=1)
+
+
+def bearing_offset_scores(
+    log: CarmenLog,
+    offsets_deg: Sequence[float] = DEFAULT_OFFSETS_DEG,
+    lag: int = 5,
+    stride: int = 2,
+    max_range: float = 20.0,
+    max_distance: float = 0.3,
+    min_points: int = 20,
+) -> np.ndarray:
+    """Median distance [m] between scans ``lag`` apart at the reference poses, per offset.
+
+    For every ``stride``-th scan ``k``, the returns of scan ``k + lag`` (within
+    ``max_range``) are moved into scan ``k``'s frame by ``inverse(P_k) (+) P_{k+lag}``
+    (``log.poses``, the lidar at the pose) and each is matched to its nearest return of
+    scan ``k`` that has a surface normal (the whole-scan matcher's,
+    :func:`~vslam_gym.slam.scan_matching.scan_normals`); the distance is taken along that
+    normal. Matches beyond ``max_distance`` (the other scan did not see that surface) are
+    left out. Pairs where either scan has fewer than ``min_points`` returns
+    are skipped. The lowest median marks the offset the poses agree with; a few
+    millimetres between neighbouring offsets are a clear difference (docs/radish.md,
+    "The bearing convention").
+
+    Args:
+        log: the log (its ``bearings``, ``ranges``, ``no_return`` and ``poses``).
+        offsets_deg: candidate offsets [deg] added to every bearing.
+        lag: scans between the two of a pair (larger: longer baselines, less overlap).
+        stride: every this-many-th scan starts a pair.
+        max_range: returns beyond this [m] are not used (their spacing is coarse).
+        max_distance: nearest-return distances beyond this [m] are not counted.
+        min_points: least returns a scan of a pair needs.
+
+    Returns:
+        ``(len(offsets_deg),)`` median distances [m] (NaN when no pair qualifies).
+
+    Raises:
+        ValueError: ``lag`` or ``stride`` below 1, ``max_range``, ``max_distance`` not
+            finite and > 0, ``min_points`` below 1, or a non-finite offset.
+    """
+    if lag < 1 or stride < 1 or min_points < 1:
+        raise ValueError(
+            f"lag, stride and min_points must be >= 1, got {lag}, {stride}, {min_points}"
+        )
+    for name, value in (("max_range", max_range), ("max_distance", max_distance)):
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+    offsets = np.asarray(offsets_deg, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(offsets)):
+        raise ValueError(f"offsets_deg must be finite, got {list(offsets_deg)}")
+    keep = ~log.no_return & (log.ranges <= max_range)
+    pairs = [
+        k
+        for k in range(0, log.num_scans - lag, stride)
+        if keep[k].sum() >= min_points and keep[k + lag].sum() >= min_points
+    ]
+    normal_config = ScanMatcherConfig()
+    scores = np.full(offsets.size, np.nan)
+    for i, offset in enumerate(offsets):
+        bearings = log.bearings + np.deg2rad(offset)
+        distances = []
+        for k in pairs:
+            x, y, theta = compose(inverse(log.poses[k]), log.poses[k + lag])
+            c, s = np.cos(theta), np.sin(theta)
+            later = _points(log.ranges[k + lag], bearings, keep[k + lag])
+            moved = later @ np.array([[c, s], [-s, c]]) + np.array([x, y])
+            earlier = _points(log.ranges[k], bearings, keep[k])
+            fit = scan_normals(earlier, normal_config)
+            if not fit.valid.any():
+                continue
+            surface, normals = earlier[fit.valid], fit.normals[fit.valid]
+            d, j = cKDTree(surface).query(moved, distance_upper_bound=max_distance)
+            near = np.isfinite(d)
+            offset_to_surface = moved[near] - surface[j[near]]
+            distances.append(np.abs(np.einsum("ij,ij->i", offset_to_surface, normals[j[near]])))
+        found = np.concatenate(distances) if distances else np.empty(0)
+        if found.size:
+            scores[i] = float(np.median(found))
+    return scores
