@@ -35,16 +35,25 @@ SIGMA_RANGE = 0.005
 """Range noise [m] of the simulated returns."""
 
 
-def room_log(tmp_path: Path, turned_deg: float, scans: int = 40) -> Path:
-    """A Carmen log driving a loop in the room; the lidar turned by ``turned_deg``."""
+def room_log(
+    tmp_path: Path, turned_deg: float, scans: int = 40, lidar_forward: float = 0.0
+) -> Path:
+    """A Carmen log driving a loop in the room; the lidar turned by ``turned_deg`` and
+    ``lidar_forward`` [m] ahead of the robot origin (``robot_frontlaser_offset``)."""
     edges = polygon_edges(ROOM)
     carmen_deg = -90.0 + np.arange(BEAMS)  # right to left, as logged
     rng = np.random.default_rng(3)
     t = np.linspace(0.0, 2.0 * np.pi, scans, endpoint=False)
-    lines = ["# message formats defined: PARAM ODOM FLASER"]
+    lines = [
+        "# message formats defined: PARAM ODOM FLASER",
+        f"PARAM robot_frontlaser_offset {lidar_forward} nohost 0",
+    ]
     for k, a in enumerate(t):
         pose = (6.0 + 3.5 * np.cos(a), 4.0 + 2.0 * np.sin(a), a + np.pi / 2)
-        ranges = cast(pose, edges, np.deg2rad(carmen_deg + turned_deg), 30.0, SIGMA_RANGE, 0.0, rng)
+        at = (pose[0] + lidar_forward * np.cos(pose[2]), pose[1] + lidar_forward * np.sin(pose[2]))
+        ranges = cast(
+            (*at, pose[2]), edges, np.deg2rad(carmen_deg + turned_deg), 30.0, SIGMA_RANGE, 0.0, rng
+        )
         fields = " ".join(f"{r:.4f}" for r in ranges)
         p = f"{pose[0]:.6f} {pose[1]:.6f} {pose[2]:.6f}"
         lines.append(f"FLASER {BEAMS} {fields} {p} {p} {k}.0 host {k}.0")
@@ -62,6 +71,15 @@ def test_check_finds_the_lidar_turn(tmp_path: Path) -> None:
     # Off by a whole beam either way, the scans lie clearly further apart.
     assert scores[offsets.index(0.0)] > 1.5 * scores[offsets.index(1.0)]
     assert scores[offsets.index(2.0)] > 1.5 * scores[offsets.index(1.0)]
+
+
+def test_check_moves_scans_by_the_lidar_poses(tmp_path: Path) -> None:
+    log = read_carmen(room_log(tmp_path, TURNED_DEG, lidar_forward=0.5))
+    assert log.lidar_offset == (0.5, 0.0, 0.0)
+    offsets = [0.0, 1.0, 2.0]
+    scores = bearing_offset_scores(log, offsets, lag=2, stride=1)
+    assert offsets[int(np.argmin(scores))] == TURNED_DEG
+    assert min(scores[0], scores[2]) > 1.5 * scores[1]
 
 
 def test_reader_offset_turns_every_bearing(tmp_path: Path) -> None:

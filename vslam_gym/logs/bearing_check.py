@@ -7,11 +7,10 @@ scan ``k``'s frame by the log's reference poses: when the bearings are right the
 scans overlap; with an offset ``d`` the relative translation ``t`` between them seems
 turned by ``d`` and the scans are about ``d |t|`` apart across their surfaces (measured
 point to line, as the whole-scan matcher does: point to point, the beam spacing would
-hide it). :func:`bearing_offset_scores`
-measures that overlap for a list of candidate offsets; the best is the offset the
-reference poses were made with (for :class:`~vslam_gym.logs.carmen.CarmenConfig`'s
-``bearing_offset_deg``). Measured on the Radish logs in docs/radish.md ("The bearing
-convention").
+hide it). :func:`bearing_offset_scores` measures that overlap for a list of candidate
+offsets; the best is the offset the reference poses were made with (for
+:class:`~vslam_gym.logs.carmen.CarmenConfig`'s ``bearing_offset_deg``). Measured on the
+Radish logs in docs/radish.md ("The bearing convention").
 
 Frames and units: the log's world frame; distances [m]; offsets [deg] added to the
 log's bearings (counter-clockwise). numpy/scipy only.
@@ -52,13 +51,13 @@ def bearing_offset_scores(
     """Median distance [m] between scans ``lag`` apart at the reference poses, per offset.
 
     For every ``stride``-th scan ``k``, the returns of scan ``k + lag`` (within
-    ``max_range``) are moved into scan ``k``'s frame by ``inverse(P_k) (+) P_{k+lag}``
-    (``log.poses``, the lidar at the pose) and each is matched to its nearest return of
+    ``max_range``) are moved into scan ``k``'s frame by the lidar poses
+    ``P (+) log.lidar_offset`` of ``log.poses`` and each is matched to its nearest return of
     scan ``k`` that has a surface normal (the whole-scan matcher's,
     :func:`~vslam_gym.slam.scan_matching.scan_normals`); the distance is taken along that
     normal. Matches beyond ``max_distance`` (the other scan did not see that surface) are
-    left out. Pairs where either scan has fewer than ``min_points`` returns
-    are skipped. The lowest median marks the offset the poses agree with; a few
+    left out. Pairs where either scan has fewer than ``min_points`` returns are skipped.
+    The lowest median marks the offset the poses agree with; a few
     millimetres between neighbouring offsets are a clear difference (docs/radish.md,
     "The bearing convention").
 
@@ -94,13 +93,16 @@ def bearing_offset_scores(
         for k in range(0, log.num_scans - lag, stride)
         if keep[k].sum() >= min_points and keep[k + lag].sum() >= min_points
     ]
-    normal_config = ScanMatcherConfig()
+    normal_config = ScanMatcherConfig()  # the matcher's normal fit, as it sees surfaces
+    lidar = np.asarray(log.lidar_offset, dtype=float)
     scores = np.full(offsets.size, np.nan)
     for i, offset in enumerate(offsets):
         bearings = log.bearings + np.deg2rad(offset)
         distances = []
         for k in pairs:
-            x, y, theta = compose(inverse(log.poses[k]), log.poses[k + lag])
+            x, y, theta = compose(
+                inverse(compose(log.poses[k], lidar)), compose(log.poses[k + lag], lidar)
+            )
             c, s = np.cos(theta), np.sin(theta)
             later = _points(log.ranges[k + lag], bearings, keep[k + lag])
             moved = later @ np.array([[c, s], [-s, c]]) + np.array([x, y])
