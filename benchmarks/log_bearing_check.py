@@ -1,8 +1,8 @@
 """Which bearing offset a Carmen log's scans share with its reference poses.
 
 Prints, per candidate offset [deg] added to the reader's bearings
-(``CarmenConfig.bearing_offset_deg``), the median distance between scans ``--lag``
-apart moved into one frame by the log's corrected poses
+(``CarmenConfig.bearing_offset_deg``), the median point-to-line distance between scans
+``--lag`` apart moved into one frame by the log's corrected poses
 (:func:`vslam_gym.logs.bearing_check.bearing_offset_scores`); the lowest marks the
 convention the poses were made with. For a log of your own: if it is not 0, replay with
 ``vslam-gym replay LOG --bearing-offset-deg D``.
@@ -35,7 +35,7 @@ def main() -> None:
     args = parser.parse_args()
     print(f"machine: {machine_description()}")
     header = "log                 lag  " + "  ".join(f"{o:+6.2f}" for o in args.offsets)
-    print("median distance [cm] between scans at the reference poses, per bearing offset [deg]")
+    print("median point-to-line distance [cm] of scans at the reference poses, per bearing offset")
     print(header)
     print("-" * len(header))
     for path in args.logs:

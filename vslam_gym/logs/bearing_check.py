@@ -57,9 +57,9 @@ def bearing_offset_scores(
     :func:`~vslam_gym.slam.scan_matching.scan_normals`); the distance is taken along that
     normal. Matches beyond ``max_distance`` (the other scan did not see that surface) are
     left out. Pairs where either scan has fewer than ``min_points`` returns are skipped.
-    The lowest median marks the offset the poses agree with; a few
-    millimetres between neighbouring offsets are a clear difference (docs/radish.md,
-    "The bearing convention").
+    The lowest median marks the offset the poses agree with; a few millimetres between
+    neighbouring offsets are a clear difference (docs/radish.md, "The bearing
+    convention").
 
     Args:
         log: the log (its ``bearings``, ``ranges``, ``no_return`` and ``poses``).
@@ -67,7 +67,8 @@ def bearing_offset_scores(
         lag: scans between the two of a pair (larger: longer baselines, less overlap).
         stride: every this-many-th scan starts a pair.
         max_range: returns beyond this [m] are not used (their spacing is coarse).
-        max_distance: nearest-return distances beyond this [m] are not counted.
+        max_distance: returns whose nearest return of the other scan lies farther [m]
+            are not counted.
         min_points: least returns a scan of a pair needs.
 
     Returns:
