@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 from _raycast import cast, polygon_edges
 
+from vslam_gym.cli import main
 from vslam_gym.logs import CarmenConfig, read_carmen
 from vslam_gym.logs.bearing_check import bearing_offset_scores
 from vslam_gym.replay import replay
@@ -101,6 +103,15 @@ def test_replay_takes_the_offset(tmp_path: Path) -> None:
     assert result["metrics"]["bearing_offset_deg"] == TURNED_DEG
     assert np.rad2deg(result["log"].bearings[0]) == pytest.approx(89.0 + TURNED_DEG)
     assert result["metrics"]["completed"]
+
+
+def test_replay_command_takes_the_offset(tmp_path: Path) -> None:
+    path = room_log(tmp_path, TURNED_DEG, scans=6)
+    out = tmp_path / "out"
+    argv = ["replay", str(path), "--bearing-offset-deg", str(TURNED_DEG), "--out", str(out)]
+    assert main([*argv, "--preset", "logs", "--no-progress"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["bearing_offset_deg"] == TURNED_DEG and metrics["completed"]
 
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf")])
