@@ -5,10 +5,11 @@ or a lidar mounted turned by a small angle) cannot be seen in the scans alone: i
 every scan alike. It shows against poses measured otherwise. Move scan ``k + lag`` into
 scan ``k``'s frame by the log's reference poses: when the bearings are right the two
 scans overlap; with an offset ``d`` the relative translation ``t`` between them seems
-turned by ``d`` and the scans are about ``d |t|`` apart across their surfaces (measured
-point to line, as the whole-scan matcher does: point to point, the beam spacing would
-hide it). :func:`bearing_offset_scores` measures that overlap for a list of candidate
-offsets; the best is the offset the reference poses were made with (for
+turned by ``d`` (turning both scans by ``d`` is, up to a rotation of the whole pair, the
+same as turning ``t`` by ``-d``) and the scans are about ``d |t|`` apart across their
+surfaces (measured point to line, as the whole-scan matcher does: point to point, the
+beam spacing would hide it). :func:`bearing_offset_scores` measures that overlap for a
+list of candidate offsets; the best is the offset the reference poses were made with (for
 :class:`~vslam_gym.logs.carmen.CarmenConfig`'s ``bearing_offset_deg``). Measured on the
 Radish logs in docs/radish.md ("The bearing convention").
 
@@ -24,6 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vslam_gym.logs.carmen import CarmenLog
+from vslam_gym.slam.geometry import polar_to_cartesian
 from vslam_gym.slam.motion import compose, inverse
 from vslam_gym.slam.scan_matching import ScanMatcherConfig, scan_normals
 
@@ -31,12 +33,6 @@ __all__ = ["DEFAULT_OFFSETS_DEG", "bearing_offset_scores"]
 
 DEFAULT_OFFSETS_DEG = (-1.0, -0.5, 0.0, 0.5, 1.0)
 """Candidate offsets [deg]: Carmen's convention and half and whole beams either way."""
-
-
-def _points(ranges: np.ndarray, bearings: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """``(m, 2)`` lidar-frame points [m] of the kept beams."""
-    r, b = ranges[keep], bearings[keep]
-    return np.stack([r * np.cos(b), r * np.sin(b)], axis=1)
 
 
 def bearing_offset_scores(
@@ -96,27 +92,31 @@ def bearing_offset_scores(
     ]
     normal_config = ScanMatcherConfig()  # the matcher's normal fit, as it sees surfaces
     lidar = np.asarray(log.lidar_offset, dtype=float)
-    scores = np.full(offsets.size, np.nan)
-    for i, offset in enumerate(offsets):
-        bearings = log.bearings + np.deg2rad(offset)
-        distances = []
-        for k in pairs:
-            x, y, theta = compose(
-                inverse(compose(log.poses[k], lidar)), compose(log.poses[k + lag], lidar)
+    turns = np.deg2rad(offsets)
+    distances: list[list[np.ndarray]] = [[] for _ in offsets]
+    for k in pairs:  # each pair's surfaces once; an offset only turns the translation
+        earlier = polar_to_cartesian(log.ranges[k, keep[k]], log.bearings[keep[k]], np.zeros(3))
+        fit = scan_normals(earlier, normal_config)
+        if not fit.valid.any():
+            continue
+        surface, normals = earlier[fit.valid], fit.normals[fit.valid]
+        tree = cKDTree(surface)
+        relative = compose(
+            inverse(compose(log.poses[k], lidar)), compose(log.poses[k + lag], lidar)
+        )
+        later = keep[k + lag]
+        for i, turn in enumerate(turns):
+            c, s = np.cos(turn), np.sin(turn)
+            x, y = relative[0] * c + relative[1] * s, -relative[0] * s + relative[1] * c
+            moved = polar_to_cartesian(
+                log.ranges[k + lag, later], log.bearings[later], np.array([x, y, relative[2]])
             )
-            c, s = np.cos(theta), np.sin(theta)
-            later = _points(log.ranges[k + lag], bearings, keep[k + lag])
-            moved = later @ np.array([[c, s], [-s, c]]) + np.array([x, y])
-            earlier = _points(log.ranges[k], bearings, keep[k])
-            fit = scan_normals(earlier, normal_config)
-            if not fit.valid.any():
-                continue
-            surface, normals = earlier[fit.valid], fit.normals[fit.valid]
-            d, j = cKDTree(surface).query(moved, distance_upper_bound=max_distance)
+            d, j = tree.query(moved, distance_upper_bound=max_distance)
             near = np.isfinite(d)
-            offset_to_surface = moved[near] - surface[j[near]]
-            distances.append(np.abs(np.einsum("ij,ij->i", offset_to_surface, normals[j[near]])))
-        found = np.concatenate(distances) if distances else np.empty(0)
-        if found.size:
-            scores[i] = float(np.median(found))
+            across = np.einsum("ij,ij->i", moved[near] - surface[j[near]], normals[j[near]])
+            distances[i].append(np.abs(across))
+    scores = np.full(offsets.size, np.nan)
+    for i, found in enumerate(distances):
+        if found:
+            scores[i] = float(np.median(np.concatenate(found)))
     return scores
