@@ -15,7 +15,9 @@ modelled object line, :func:`vslam_gym.exploration.coverage`, at the end), posit
 ATE (RMSE of ``info["slam_pose"]`` against ``info["pose"]``, no alignment), the mean
 3-dof pose NEES (and of the position and the heading alone, ``nees_position_mean`` and
 ``nees_heading_mean``), collisions, the return (the wrapper's belief reward), steps, final
-landmark count and throughput. Written to ``OUT``:
+landmark count, the revisit matches fused (``loop_closures``) and their NEES against the
+true pose (``loop_match_nees_mean`` and ``_median``: 3 and 2.37 for consistent matches)
+and throughput. Written to ``OUT``:
 
 - ``metrics.json``: settings, per-episode metrics and their mean;
 - ``steps.csv``: one row per step (step 0 is the reset): true and SLAM pose, reward and
@@ -55,6 +57,8 @@ from agents.scripted import SCRIPTED_AGENTS, Agent, make_agent  # noqa: E402
 from vslam_gym.evaluation import (  # noqa: E402
     START_SCAN_MODES,
     json_safe,
+    loop_match_nees,
+    loop_match_summary,
     machine_description,
     name_or_mapping,
     nees_part_means,
@@ -249,6 +253,7 @@ def run_agent_episode(
     rows = [_row(0, info, 0.0, cover())]
     frames = [env.render()] if render else []
     true_poses, slam_poses, covariances = [info["pose"]], [info["slam_pose"]], []
+    match_nees: list[float] = []  # of each fused revisit match
     total, collisions, distance, env_seconds = 0.0, 0, 0.0, 0.0
     terminated = truncated = False
     step = 0
@@ -265,6 +270,7 @@ def run_agent_episode(
         true_poses.append(info["pose"])
         slam_poses.append(info["slam_pose"])
         covariances.append(info["slam_pose_cov"])
+        match_nees += loop_match_nees(env.get_wrapper_attr("belief"), info["pose"])
         rows.append(_row(step, info, reward, cover()))
         if render:
             frames.append(env.render())
@@ -287,6 +293,8 @@ def run_agent_episode(
         "collisions": collisions,
         "return": total,
         "landmarks": int(info["landmarks"]),
+        "loop_closures": len(match_nees),
+        **loop_match_summary(np.array(match_nees)),
         "distance_m": distance,
         "boundary_samples": len(samples.points),
         "wall_s": wall,

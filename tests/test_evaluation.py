@@ -26,6 +26,7 @@ from vslam_gym.evaluation import (
     format_table,
     heading_rmse,
     landmark_majority_ids,
+    loop_match_summary,
     majority_id,
     mean_metrics,
     mean_nees_interval,
@@ -138,6 +139,14 @@ def test_nees_is_nan_for_a_covariance_that_is_not_positive_definite():
     nees = pose_nees(np.zeros((2, 3)), covs, np.ones((2, 3)))
     assert nees[0] == pytest.approx(3.0)
     assert np.isnan(nees[1])
+
+
+def test_loop_match_summary_is_nan_without_matches_and_skips_nan():
+    empty = loop_match_summary(np.array([]))
+    assert math.isnan(empty["loop_match_nees_mean"]) and math.isnan(empty["loop_match_nees_median"])
+    assert math.isnan(loop_match_summary(None)["loop_match_nees_median"])
+    summary = loop_match_summary(np.array([1.0, 2.0, 9.0, np.nan]))
+    assert summary == {"loop_match_nees_mean": 4.0, "loop_match_nees_median": 2.0}
 
 
 def test_chi2_intervals():
@@ -448,6 +457,9 @@ def test_episode_log_is_consistent(episode):
     rejected = [d for d in episode.decisions if d.outcome == "rejected"]
     assert timing["rejected_updates"] == len(rejected)
     assert timing["updates"] == sum(d.outcome == "updated" for d in episode.decisions) > 0
+    # no revisit match this early (60 updates old at least): the match NEES is NaN
+    assert episode.loop_match_nees.size == timing["loop_closures"] == 0
+    assert math.isnan(timing["loop_match_nees_mean"])
 
 
 def _same(a, b):

@@ -261,6 +261,25 @@ def test_loop_closure_fuses_revisits_and_keeps_the_state_positive_definite():
     assert not any(b.loop_closed for b in off)
 
 
+def test_the_belief_reports_each_fused_match_and_its_noise():
+    slam, beliefs, true = _drive(True)
+    fused = [k for k, b in enumerate(beliefs) if b.loop_closed]
+    assert fused
+    for k, b in enumerate(beliefs):
+        if not b.loop_closed:
+            assert b.loop_match_pose is None and b.loop_match_cov is None
+            continue
+        assert b.loop_match_pose.shape == (3,) and b.loop_match_cov.shape == (3, 3)
+        np.testing.assert_allclose(b.loop_match_cov, b.loop_match_cov.T)
+        assert np.linalg.eigvalsh(b.loop_match_cov).min() > 0
+        # the match measures the pose of the step it was fused in: near the truth
+        assert np.hypot(*(b.loop_match_pose[:2] - true[k + 1, :2])) < 0.1
+    # the noise includes the floor (the default's) beyond the match's own
+    _, floored, _ = _drive(True, loop_sigma_floor=(0.3, 0.3, 0.1))
+    first = next(b for b in floored if b.loop_closed)
+    assert np.all(np.diag(first.loop_match_cov) >= np.array([0.3, 0.3, 0.1]) ** 2)
+
+
 def test_corrected_keyframes_still_close_the_loop():
     slam, beliefs, true = _drive(True, loop_correct_keyframes="time")
     assert any(b.loop_closed for b in beliefs)

@@ -220,6 +220,8 @@ class EpisodeLog:
         route_done: the route follower reached its last waypoint.
         wall_s: wall time [s] of the episode (simulation, filter and logging).
         loop_closures: steps that fused a revisit match (``Belief.loop_closed``).
+        loop_match_nees: ``(loop_closures,)`` each fused revisit match's NEES against the
+            true pose (:func:`loop_match_nees`), or None when not recorded.
         surface_hits: per surface piece of the world (:func:`vslam_gym.surfaces.surface_pieces`)
             the most beams of one scan that hit it (computed from the true pose); None
             when not recorded.
@@ -246,6 +248,7 @@ class EpisodeLog:
     loop_closures: int = 0
     surface_hits: np.ndarray | None = None
     filter_covs: np.ndarray | None = None
+    loop_match_nees: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -400,7 +403,7 @@ def run_episode(
     filter_covs = [belief.filter_pose_cov]
     step_ms, measured, counts, collisions = [], [], [len(belief.landmarks)], []
     decisions: list[DecisionRecord] = []
-    loop_closures = 0
+    loop_closures, match_nees = 0, []
     try:
         for step in range(1, limit + 1):
             action = follower(info["pose"])
@@ -418,6 +421,7 @@ def run_episode(
             counts.append(len(belief.landmarks))
             collisions.append(bool(info["collision"]))
             loop_closures += int(belief.loop_closed)
+            match_nees += loop_match_nees(belief, info["pose"])
             hit_ids = info["hit_ids"]
             _count_surface_hits(
                 surface_hits, pieces, info["pose"], obs["scan"], info["bearings"], hit_ids
@@ -466,6 +470,7 @@ def run_episode(
         wall_s=time.perf_counter() - start,
         loop_closures=loop_closures,
         surface_hits=surface_hits,
+        loop_match_nees=np.array(match_nees, dtype=float),
     )
 
 
@@ -648,6 +653,34 @@ def nees_part_means(
             pose_nees(estimated, covariances, true, components), len(components)
         )["nees_mean"]
         for part, components in NEES_PARTS.items()
+    }
+
+
+def loop_match_nees(belief: Belief, true_pose: np.ndarray) -> list[float]:
+    """The NEES of the revisit match a step fused, as a list of none or one value.
+
+    ``e^T C^-1 e`` with ``e`` the true pose minus the match's pose
+    (``Belief.loop_match_pose``) and ``C`` the noise it was fused with
+    (``Belief.loop_match_cov``): chi-square with 3 degrees of freedom for a consistent
+    match. ``true_pose``: ``(3,)`` the true lidar pose ``(x [m], y [m], theta [rad])``
+    (the robot pose in simulation, where the lidar sits at the robot centre). Empty when
+    the step fused no match.
+    """
+    if belief.loop_match_pose is None or belief.loop_match_cov is None:
+        return []
+    value = pose_nees(belief.loop_match_pose[None], belief.loop_match_cov[None], true_pose[None])
+    return [float(value[0])]
+
+
+def loop_match_summary(values: np.ndarray | None) -> dict[str, float]:
+    """``loop_match_nees_mean`` and ``_median`` of per-match NEES values (NaN when none)."""
+    arr = np.asarray([] if values is None else values, dtype=float)
+    arr = arr[np.isfinite(arr)]
+    if arr.size == 0:
+        return {"loop_match_nees_mean": math.nan, "loop_match_nees_median": math.nan}
+    return {
+        "loop_match_nees_mean": float(arr.mean()),
+        "loop_match_nees_median": float(np.median(arr)),
     }
 
 
@@ -889,6 +922,10 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
     ids: the lowest the ``duplicate_fraction`` of any per-surface map can be on the route; NaN
     when the log has no ``surface_hits``);
     ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``);
+    ``loop_match_nees_mean`` and ``loop_match_nees_median`` (over those matches, each
+    one's NEES against the true pose with the noise it was fused with,
+    :func:`loop_match_nees`: a consistent match has mean 3 and median 2.37; NaN when
+    none was fused or the log has no record);
     ``step_ms_median``, ``step_ms_p95``, ``step_ms_mean`` [ms] (the mean is what a
     throughput sees when a motion filter makes most steps cheap);
     ``measured_fraction`` (steps that ran the measurement update) and
@@ -962,6 +999,7 @@ def episode_metrics(log: EpisodeLog) -> dict[str, Any]:
             "duplicate_floor": floor,
             **{f"created_{cause}": count for cause, count in causes.items()},
             "loop_closures": log.loop_closures,
+            **loop_match_summary(log.loop_match_nees),
             "step_ms_median": median,
             "step_ms_p95": p95,
             "step_ms_mean": float(np.mean(log.step_ms)) if len(log.step_ms) else math.nan,

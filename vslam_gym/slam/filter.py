@@ -474,6 +474,11 @@ class Belief:
         pruned: ids of the landmarks removed in the last step as covered duplicates
             (``FilterConfig.prune_covered_distance``).
         loop_closed: the last step fused a revisit match (``FilterConfig.loop_closure``).
+        loop_match_pose: ``(3,)`` that match: the lidar pose ``[x, y, theta]`` (world
+            frame) it measured; None when no match was fused.
+        loop_match_cov: ``(3, 3)`` the noise covariance it was fused with (the match's,
+            plus its keyframes' pose covariance and ``FilterConfig.loop_sigma_floor``);
+            None when no match was fused.
         step_ms_parts: wall time [ms] of the last step's parts (:data:`STEP_PARTS`):
             ``"motion"`` (the motion update, with the whole-scan matcher when
             ``prealign`` is on), ``"loop_closure"`` (the revisit match and its update),
@@ -497,6 +502,8 @@ class Belief:
     measured: bool = False
     pruned: tuple[int, ...] = ()
     loop_closed: bool = False
+    loop_match_pose: np.ndarray | None = None
+    loop_match_cov: np.ndarray | None = None
     step_ms_parts: Mapping[str, float] = field(default_factory=dict)
     filter_pose_cov: np.ndarray | None = None
 
@@ -713,6 +720,7 @@ class VertexSLAM:
         self._normals: ScanNormals | None = None  # the step's scan normals
         self._loop = self._make_loop_closure()
         self._loop_closed = False
+        self._loop_match: tuple[np.ndarray, np.ndarray] | None = None  # fused: pose, cov
         self._prealigned = False
         self._measured = False
         self._measured_at: np.ndarray | None = None  # pose after the last measurement update
@@ -747,6 +755,8 @@ class VertexSLAM:
             measured=self._measured,
             pruned=self._pruned,
             loop_closed=self._loop_closed,
+            loop_match_pose=None if self._loop_match is None else self._loop_match[0].copy(),
+            loop_match_cov=None if self._loop_match is None else self._loop_match[1].copy(),
             step_ms_parts=dict(self._step_ms_parts),
             filter_pose_cov=self._sigma[:3, :3].copy(),
         )
@@ -850,6 +860,7 @@ class VertexSLAM:
         self._measured = self._moved_enough() if measured is None else measured
         self._pruned = ()
         self._loop_closed = False
+        self._loop_match = None
         parts["motion"] = (time.perf_counter() - start) * 1e3
         if self._measured:
             self._measurements += 1
@@ -1097,6 +1108,7 @@ class VertexSLAM:
             self._error = error_covariance.pose_update(self._error, self._sigma, found.cov)
         self._mu, self._sigma = mu, sigma
         self._loop.fused(self._measurements)
+        self._loop_match = (found.pose.copy(), found.cov.copy())
         return True
 
     # ------------------------------------------------------------------ measurement
