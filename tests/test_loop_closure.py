@@ -280,6 +280,20 @@ def test_the_belief_reports_each_fused_match_and_its_noise():
     assert np.all(np.diag(first.loop_match_cov) >= np.array([0.3, 0.3, 0.1]) ** 2)
 
 
+def test_the_default_floors_the_revisit_noise_and_the_loop_still_closes():
+    assert SlamConfig().filter.loop_sigma_floor == (0.02, 0.02, 0.005)
+    assert SlamConfig.logs().filter.loop_sigma_floor == (0.0, 0.0, 0.0)
+    assert SlamConfig.fast().filter.loop_sigma_floor == (0.0, 0.0, 0.0)
+    floored, with_floor, true = _drive(True)
+    plain, without, _ = _drive(True, loop_sigma_floor=(0.0, 0.0, 0.0))
+    for beliefs in (with_floor, without):
+        assert sum(b.loop_closed for b in beliefs) > 5
+        assert np.hypot(*(beliefs[-1].pose[:2] - true[-1, :2])) < 0.1
+    # the same revisits inform the pose less: its covariance shrinks less
+    assert np.trace(floored._sigma[:2, :2]) > np.trace(plain._sigma[:2, :2])
+    assert np.linalg.eigvalsh(floored._sigma).min() > 0
+
+
 def test_corrected_keyframes_still_close_the_loop():
     slam, beliefs, true = _drive(True, loop_correct_keyframes="time")
     assert any(b.loop_closed for b in beliefs)
@@ -313,7 +327,7 @@ def test_tracking_after_fused_matches_still_closes_the_loop_in_the_filter(monkey
 
 def test_min_innovation_fuses_only_matches_that_disagree_with_the_belief():
     _, every, _ = _drive(True)
-    _, some, _ = _drive(True, loop_min_innovation=0.5)
+    _, some, _ = _drive(True, loop_min_innovation=1.5)
     _, none, _ = _drive(True, loop_min_innovation=1e6)
     fused = [sum(b.loop_closed for b in run) for run in (every, some, none)]
     assert fused[0] > fused[1] > fused[2] == 0, fused
