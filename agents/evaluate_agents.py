@@ -246,11 +246,8 @@ def run_agent_episode(
     agent.reset(env, obs, info, seed=seed)
     samples = boundary_samples(env.unwrapped.world, cfg.sample_spacing)
 
-    def cover() -> float:
-        belief = env.get_wrapper_attr("belief")
-        return coverage(samples, belief, tolerance=cfg.coverage_tolerance)
-
-    rows = [_row(0, info, 0.0, cover())]
+    tolerance = cfg.coverage_tolerance
+    rows = [_row(0, info, 0.0, coverage(samples, env.get_wrapper_attr("belief"), tolerance))]
     frames = [env.render()] if render else []
     true_poses, slam_poses, covariances = [info["pose"]], [info["slam_pose"]], []
     match_nees: list[float] = []  # of each fused revisit match
@@ -270,8 +267,10 @@ def run_agent_episode(
         true_poses.append(info["pose"])
         slam_poses.append(info["slam_pose"])
         covariances.append(info["slam_pose_cov"])
-        match_nees += loop_match_nees(env.get_wrapper_attr("belief"), info["pose"])
-        rows.append(_row(step, info, reward, cover()))
+        belief = env.get_wrapper_attr("belief")
+        if (fused := loop_match_nees(belief, info["pose"])) is not None:
+            match_nees.append(fused)
+        rows.append(_row(step, info, reward, coverage(samples, belief, tolerance)))
         if render:
             frames.append(env.render())
         if on_step is not None:

@@ -26,6 +26,7 @@ from vslam_gym.evaluation import (
     format_table,
     heading_rmse,
     landmark_majority_ids,
+    loop_match_nees,
     loop_match_summary,
     majority_id,
     mean_metrics,
@@ -43,7 +44,7 @@ from vslam_gym.evaluation import (
     yaw_quaternion,
 )
 from vslam_gym.sim.world_file import load_world, world_to_toml
-from vslam_gym.slam.filter import SlamConfig
+from vslam_gym.slam.filter import Belief, SlamConfig
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 REQUIRED_KEYS = {
@@ -139,6 +140,19 @@ def test_nees_is_nan_for_a_covariance_that_is_not_positive_definite():
     nees = pose_nees(np.zeros((2, 3)), covs, np.ones((2, 3)))
     assert nees[0] == pytest.approx(3.0)
     assert np.isnan(nees[1])
+
+
+def test_loop_match_nees_of_a_known_case_and_none_without_a_match():
+    pose = np.array([1.0, 2.0, 0.1])
+    plain = Belief(0, pose, np.eye(3), pose, (), (), 3, 0.0)
+    assert loop_match_nees(plain, pose) is None
+    fused = dataclasses.replace(
+        plain,
+        loop_match_pose=np.array([1.3, 1.6, 0.1 + 0.05]),
+        loop_match_cov=np.diag([0.09, 0.04, 0.01]),
+    )
+    # (0.3 / 0.3)^2 + (0.4 / 0.2)^2 + (0.05 / 0.1)^2 = 1 + 4 + 0.25
+    assert loop_match_nees(fused, pose) == pytest.approx(5.25)
 
 
 def test_loop_match_summary_is_nan_without_matches_and_skips_nan():

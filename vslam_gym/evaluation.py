@@ -421,7 +421,8 @@ def run_episode(
             counts.append(len(belief.landmarks))
             collisions.append(bool(info["collision"]))
             loop_closures += int(belief.loop_closed)
-            match_nees += loop_match_nees(belief, info["pose"])
+            if (fused := loop_match_nees(belief, info["pose"])) is not None:
+                match_nees.append(fused)
             hit_ids = info["hit_ids"]
             _count_surface_hits(
                 surface_hits, pieces, info["pose"], obs["scan"], info["bearings"], hit_ids
@@ -656,20 +657,19 @@ def nees_part_means(
     }
 
 
-def loop_match_nees(belief: Belief, true_pose: np.ndarray) -> list[float]:
-    """The NEES of the revisit match a step fused, as a list of none or one value.
+def loop_match_nees(belief: Belief, true_pose: np.ndarray) -> float | None:
+    """The NEES of the revisit match a step fused (None when it fused none).
 
     ``e^T C^-1 e`` with ``e`` the true pose minus the match's pose
     (``Belief.loop_match_pose``) and ``C`` the noise it was fused with
     (``Belief.loop_match_cov``): chi-square with 3 degrees of freedom for a consistent
     match. ``true_pose``: ``(3,)`` the true lidar pose ``(x [m], y [m], theta [rad])``
-    (the robot pose in simulation, where the lidar sits at the robot centre). Empty when
-    the step fused no match.
+    (the robot pose in simulation, where the lidar sits at the robot centre).
     """
     if belief.loop_match_pose is None or belief.loop_match_cov is None:
-        return []
+        return None
     value = pose_nees(belief.loop_match_pose[None], belief.loop_match_cov[None], true_pose[None])
-    return [float(value[0])]
+    return float(value[0])
 
 
 def loop_match_summary(values: np.ndarray | None) -> dict[str, float]:
