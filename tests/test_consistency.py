@@ -38,15 +38,15 @@ def test_error_covariance_of_the_landmark_updates_is_consistent_on_small(seed):
     holds their errors.
 
     The filter's own covariance is too small once landmarks update the pose: over these
-    150 steps its mean NEES is 3.0-4.6 (15 on seed 3; 4.5-8.3 before session 33's start
-    keyframe, which keeps the map from starting rotated), 3.7-4.4 times that of the
-    error covariance of its gains with the landmark factors' noise scaled by 10, which
-    gives about 0.75-1.1.
+    150 steps its mean NEES is 2.2 / 12.1 / 5.1 on seeds 0-2 (session 37's 40 matcher
+    keyframes; 3.0-4.6 with 20, 4.5-8.3 before session 33's start keyframe, which keeps
+    the map from starting rotated), 2.8-8.7 times that of the error covariance of its
+    gains with the landmark factors' noise scaled by 10, which gives about 0.8-1.4.
     """
     plain = run_episode("small", seed, max_steps=150, overrides=FILTER_OWN)
     wide = run_episode("small", seed, max_steps=150)
     np.testing.assert_array_equal(wide.slam_poses, plain.slam_poses)
     nees_plain = pose_nees(plain.slam_poses, plain.slam_covs, plain.true_poses).mean()
     nees = pose_nees(wide.slam_poses, wide.slam_covs, wide.true_poses).mean()
-    assert nees_plain > 3.0 * nees, (nees_plain, nees)
+    assert nees_plain > 2.5 * nees, (nees_plain, nees)
     assert 0.5 < nees < 4.0, nees

@@ -10,6 +10,7 @@ from _raycast import bearings_deg, cast, polygon_edges
 
 from vslam_gym.slam.filter import SlamConfig
 from vslam_gym.slam.geometry import wrap_angle
+from vslam_gym.slam.motion import compose
 from vslam_gym.slam.scan_matching import (
     LocalMap,
     ScanMatcherConfig,
@@ -148,6 +149,48 @@ def test_normals_are_perpendicular_to_a_wall_and_keyframes_are_bounded():
     for k in range(4):
         local.add(pts, np.array([0.1 * k, 0.0, 0.0]))
     assert len(local) == 2
+
+
+def _chained_error(keyframes: int, seed: int) -> tuple[float, float]:
+    """Final position [m] and heading [rad] error of a chain of matches (matched motion).
+
+    The robot drives 4.5 m forward along the L room and back, twice, 0.15 m per step; each
+    scan (90 beams, 3 cm range noise) is matched from the last match composed with a
+    noisy odometry increment and then added to the local map at the matched pose, as
+    ``prealign="odometry"`` does.
+    """
+    rng = np.random.default_rng(seed)
+    config = replace(SlamConfig().matcher, keyframes=keyframes)
+    local = LocalMap(config)
+    bearings = bearings_deg(180.0, 2.0)
+
+    def scan(pose):
+        return scan_points(cast(pose, L_ROOM, bearings, MAX_RANGE, 0.03, rng=rng), bearings, 30.0)
+
+    true = np.array([1.5, 1.5, 0.2])
+    estimate = true.copy()
+    local.add(scan(true), estimate)
+    noise = np.diag([0.02, 0.02, 0.02]) ** 2
+    for k in range(120):
+        step = np.array([0.15 if (k // 30) % 2 == 0 else -0.15, 0.0, 0.0])
+        true = compose(true, step)
+        odometry = step + rng.multivariate_normal(np.zeros(3), noise)
+        points = scan(true)
+        result = match_scan(points, local, compose(estimate, odometry), noise, config)
+        estimate = compose(estimate, odometry) if result is None else result.pose
+        local.add(points, estimate)
+    return float(np.hypot(*(estimate[:2] - true[:2]))), abs(float(wrap_angle(estimate[2] - true[2])))
+
+
+def test_a_longer_local_map_drifts_less_when_driving_back_and_forth():
+    """The default's 40 keyframes reach back into the last pass; 20 hardly do."""
+    assert SlamConfig().matcher.keyframes == 40
+    assert SlamConfig.logs().matcher.keyframes == SlamConfig.fast().matcher.keyframes == 20
+    short = np.array([_chained_error(20, seed) for seed in range(3)])
+    long = np.array([_chained_error(40, seed) for seed in range(3)])
+    assert np.all(long[:, 0] < short[:, 0])
+    assert long[:, 0].mean() < 0.7 * short[:, 0].mean()
+    assert long[:, 1].mean() < 0.7 * short[:, 1].mean()
 
 
 def test_normals_match_a_per_point_fit_and_can_be_passed_to_the_map():

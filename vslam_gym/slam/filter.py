@@ -121,6 +121,19 @@ position ATE on worlds 1000-1039 0.126 -> 0.096 m."""
 DEFAULT_MATCHER_COVARIANCE_INFLATION = 3.0
 """``ScanMatcherConfig.covariance_inflation`` of the default preset (see
 :data:`DEFAULT_MATCHER_SIGMA_FLOOR`; the logs' 10 in the ``logs`` and ``fast`` presets)."""
+DEFAULT_MATCHER_KEYFRAMES = 40
+"""``ScanMatcherConfig.keyframes`` of the default preset: the matched motion's local map
+holds the last 40 measured scans (about 6 m of travel under the motion filter) instead of
+20, so a robot that drives back and forth matches against its earlier pass for longer
+and its matched motion drifts less (docs/measurements.md, "Session 37"). The pose error
+of the ``frontier`` explorer grows almost only through the matched motion (worlds
+1000-1019: the landmark updates and revisit matches change it by a few centimetres
+over all steps). 20 -> 40, the ``frontier`` explorer on the held-out worlds 1000-1059:
+position ATE 0.0514 -> 0.0462 m (paired t -1.5, 39 worlds better, 21 worse), coverage
+0.317 -> 0.328; the routes (seeds 0-9, position ATE m) single_landmark 0.094 -> 0.097,
+``small`` 0.065 -> 0.043, ``curved`` 0.052 -> 0.054, ``house`` 0.128 -> 0.117. 80
+keyframes: worlds 1000-1019 0.0466 m (40: 0.0412 m). The ``logs`` and ``fast`` presets
+keep 20."""
 
 CORRECTION_RANK_TOLERANCE = 1e-6
 """Directions whose correction variance is below this times the largest are left out of
@@ -141,7 +154,8 @@ class SlamConfig:
         matcher: whole-scan matcher parameters, used by ``filter.prealign`` and the
             loop closure (``filter.loop_closure``): by default a tighter matched
             covariance than the logs' (:data:`DEFAULT_MATCHER_SIGMA_FLOOR`,
-            :data:`DEFAULT_MATCHER_COVARIANCE_INFLATION`).
+            :data:`DEFAULT_MATCHER_COVARIANCE_INFLATION`) and a longer local map
+            (:data:`DEFAULT_MATCHER_KEYFRAMES`).
     """
 
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -153,6 +167,7 @@ class SlamConfig:
         default_factory=lambda: ScanMatcherConfig(
             sigma_floor=DEFAULT_MATCHER_SIGMA_FLOOR,
             covariance_inflation=DEFAULT_MATCHER_COVARIANCE_INFLATION,
+            keyframes=DEFAULT_MATCHER_KEYFRAMES,
         )
     )
 

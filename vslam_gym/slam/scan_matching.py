@@ -65,7 +65,10 @@ class ScanMatcherConfig:
     """Parameters of the whole-scan matcher (not thesis values; measured on the logs).
 
     Attributes:
-        keyframes: keyframes kept in the local map (the last ones).
+        keyframes: keyframes kept in the local map (the last ones); the default preset
+            keeps 40 (``vslam_gym.slam.filter.DEFAULT_MATCHER_KEYFRAMES``: a longer
+            memory drifts less when the robot drives back and forth), the ``logs`` and
+            ``fast`` presets 20.
         keyframe_distance: a scan becomes a keyframe only when its pose is at least this
             far [m] from the last keyframe's ...
         keyframe_heading_deg: ... or turned at least this much [deg] from it; with both
