@@ -165,7 +165,9 @@ def _chained_error(keyframes: int, seed: int) -> tuple[float, float]:
     bearings = bearings_deg(180.0, 2.0)
 
     def scan(pose):
-        return scan_points(cast(pose, L_ROOM, bearings, MAX_RANGE, 0.03, rng=rng), bearings, 30.0)
+        return scan_points(
+            cast(pose, L_ROOM, bearings, MAX_RANGE, 0.03, rng=rng), bearings, MAX_RANGE
+        )
 
     true = np.array([1.5, 1.5, 0.2])
     estimate = true.copy()
