@@ -132,8 +132,9 @@ over all steps). 20 -> 40, the ``frontier`` explorer on the held-out worlds 1000
 position ATE 0.0514 -> 0.0462 m (paired t -1.5, 39 worlds better, 21 worse), coverage
 0.317 -> 0.328; the routes (seeds 0-9, position ATE m) single_landmark 0.094 -> 0.097,
 ``small`` 0.065 -> 0.043, ``curved`` 0.052 -> 0.054, ``house`` 0.128 -> 0.117 (seeds
-0-19 0.123 / 0.112 -> 0.109 / 0.116 in two round-off samples: level); ``curved``'s steps in the NEES band 95 -> 89.95 %. 80 keyframes:
-worlds 1000-1019 0.0466 m (40: 0.0412 m). The ``logs`` and ``fast`` presets keep 20."""
+0-19 0.123 / 0.112 -> 0.109 / 0.116 in two round-off samples: level); ``curved``'s
+steps in the NEES band 95 -> 89.95 %. 80 keyframes: worlds 1000-1019 0.0466 m (40:
+0.0412 m). The ``logs`` and ``fast`` presets keep 20."""
 
 CORRECTION_RANK_TOLERANCE = 1e-6
 """Directions whose correction variance is below this times the largest are left out of
