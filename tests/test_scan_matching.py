@@ -181,9 +181,8 @@ def _chained_error(keyframes: int, seed: int) -> tuple[float, float]:
         result = match_scan(points, local, compose(estimate, odometry), noise, config)
         estimate = compose(estimate, odometry) if result is None else result.pose
         local.add(points, estimate)
-    return float(np.hypot(*(estimate[:2] - true[:2]))), abs(
-        float(wrap_angle(estimate[2] - true[2]))
-    )
+    position_error = float(np.hypot(*(estimate[:2] - true[:2])))
+    return position_error, abs(float(wrap_angle(estimate[2] - true[2])))
 
 
 def test_a_longer_local_map_drifts_less_when_driving_back_and_forth():
