@@ -24,7 +24,11 @@ and throughput. Written to ``OUT``:
   each reward term (``r_<term>``), coverage, collision, landmarks;
 - ``metrics.md``: the table also printed on the terminal;
 - ``episode.gif`` with ``--video``: the first episode, the belief drawn over the true
-  world (the wrapper's ``render()``).
+  world (the wrapper's ``render()``);
+- ``logs/episode_<seed>.log.gz`` with ``--carmen-logs``: every episode's scans, true
+  poses and wheel odometry as a Carmen log (:func:`vslam_gym.logs.write_carmen`), which
+  ``vslam-gym replay LOG --odometry logged`` runs any SLAM configuration on: the same
+  scans and odometry for every configuration, where closed-loop runs drive other paths.
 
 The same arguments give the same numbers (timings apart): the world, the sensor noise
 and the agents depend only on the seeds.
@@ -68,6 +72,7 @@ from vslam_gym.evaluation import (  # noqa: E402
     progress_bar,
 )
 from vslam_gym.exploration import boundary_samples, coverage  # noqa: E402
+from vslam_gym.logs import CarmenRecorder  # noqa: E402
 
 gym.register_envs(vslam_gym)
 
@@ -225,6 +230,7 @@ def run_agent_episode(
     config: EvaluationConfig | None = None,
     render: bool = False,
     on_step: Callable[[int], None] | None = None,
+    carmen_log: str | Path | None = None,
 ) -> EpisodeResult:
     """Run one episode of ``agent`` on a SLAM-wrapped env and measure it.
 
@@ -237,6 +243,8 @@ def run_agent_episode(
         config: coverage tolerance and sample spacing.
         render: keep a frame per step (``env.render()``) in the result.
         on_step: called with the step number after every step (progress bars).
+        carmen_log: write the episode's scans, true poses and wheel odometry to this
+            Carmen log (``.log`` or ``.log.gz``; :class:`vslam_gym.logs.CarmenRecorder`).
 
     Returns:
         The metrics, the per-step rows and the frames.
@@ -249,6 +257,13 @@ def run_agent_episode(
     tolerance = cfg.coverage_tolerance
     rows = [_row(0, info, 0.0, coverage(samples, env.get_wrapper_attr("belief"), tolerance))]
     frames = [env.render()] if render else []
+    recorder = None
+    if carmen_log is not None:
+        sim = env.unwrapped
+        recorder = CarmenRecorder(
+            info["bearings"], sim.lidar_spec.max_range, sim.physics_config.control_period
+        )
+        recorder.add(sim.scan.ranges, info["pose"], info["odom_pose"])
     true_poses, slam_poses, covariances = [info["pose"]], [info["slam_pose"]], []
     match_nees: list[float] = []  # of each fused revisit match
     total, collisions, distance, env_seconds = 0.0, 0, 0.0, 0.0
@@ -271,11 +286,15 @@ def run_agent_episode(
         if (fused := loop_match_nees(belief, info["pose"])) is not None:
             match_nees.append(fused)
         rows.append(_row(step, info, reward, coverage(samples, belief, tolerance)))
+        if recorder is not None:
+            recorder.add(env.unwrapped.scan.ranges, info["pose"], info["odom_pose"])
         if render:
             frames.append(env.render())
         if on_step is not None:
             on_step(step)
     wall = time.perf_counter() - start
+    if recorder is not None:
+        recorder.write(carmen_log)
     true_arr, slam_arr = np.asarray(true_poses), np.asarray(slam_poses)
     covs = np.asarray(covariances).reshape(-1, 3, 3)
     parts = nees_part_means(slam_arr[1:], covs, true_arr[1:])
@@ -391,6 +410,7 @@ def evaluate_agent(
     shield: bool = False,
     slam_config: str | Mapping[str, Any] | None = None,
     start_scan: str | None = None,
+    carmen_logs: bool = False,
 ) -> dict[str, Any]:
     """Evaluate an agent over ``episodes`` seeded episodes; optionally write the files.
 
@@ -417,6 +437,8 @@ def evaluate_agent(
             {"loop_closure": False}}``).
         start_scan: the wrapper's ``start_scan`` instead of the registration's
             (``"matcher"``): ``"map"`` or ``"none"`` (the behaviour before session 33).
+        carmen_logs: write every episode as ``out_dir/logs/episode_<seed>.log.gz``
+            (:func:`run_agent_episode`'s ``carmen_log``; needs ``out_dir``).
 
     Returns:
         ``{"agent", "env_id", "seed", "episodes", "max_steps", "machine", "per_episode",
@@ -426,6 +448,11 @@ def evaluate_agent(
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     if video and out_dir is None:
         raise ValueError("video=True needs an out_dir to write the GIF to")
+    if carmen_logs and out_dir is None:
+        raise ValueError("carmen_logs=True needs an out_dir to write the logs to")
+    log_dir = Path(out_dir) / "logs" if carmen_logs and out_dir is not None else None
+    if log_dir is not None:
+        log_dir.mkdir(parents=True, exist_ok=True)
     cfg = config if config is not None else EvaluationConfig()
     runner = resolve_agent(agent, seed)
     kwargs = dict(env_kwargs or {})
@@ -459,6 +486,7 @@ def evaluate_agent(
                 config=cfg,
                 render=video and i == 0,
                 on_step=(lambda _step: bar.update(1)) if bar is not None else None,
+                carmen_log=None if log_dir is None else log_dir / f"episode_{seed + i}.log.gz",
             )
             if bar is not None and horizon:
                 bar.total -= horizon - result.metrics["steps"]  # an episode ended early
@@ -479,6 +507,7 @@ def evaluate_agent(
         "shield": bool(shield),
         "slam_config": slam_config or "registered",
         "start_scan": start_scan or "registered",
+        "carmen_logs": bool(carmen_logs),
         "seed": seed,
         "episodes": episodes,
         "max_steps": horizon,
@@ -542,6 +571,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="what the filter does with the scan of reset (default: the registration's, "
         "'matcher'); 'none' as before session 33",
     )
+    parser.add_argument(
+        "--carmen-logs",
+        action="store_true",
+        help="write every episode's scans, true poses and odometry to OUT/logs/"
+        "episode_<seed>.log.gz (Carmen format; vslam-gym replay LOG --odometry logged)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -563,6 +598,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             shield=args.shield,
             slam_config=args.slam_config,
             start_scan=args.start_scan,
+            carmen_logs=args.carmen_logs,
         )
     except (ValueError, gym.error.Error) as err:
         print(f"error: {err}", file=sys.stderr)

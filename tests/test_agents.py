@@ -33,6 +33,7 @@ from agents.scripted import (
     WallFollowerConfig,
     make_agent,
 )
+from vslam_gym.replay import replay
 from vslam_gym.sim.world import LidarSpec, RobotSpec, World
 from vslam_gym.slam.filter import LandmarkView
 from vslam_gym.slam.landmark import LandmarkModel
@@ -315,3 +316,31 @@ def test_a_saved_ppo_model_evaluates(tmp_path: Path) -> None:
     assert isinstance(resolve_agent(str(path)), PolicyAgent)
     again = evaluate_agent(model, SMALL, episodes=1, seed=0, max_steps=5, progress=False)
     assert again["per_episode"][0]["ate_m"] == result["per_episode"][0]["ate_m"]
+
+
+def test_carmen_logs_replay_the_closed_loop_run(tmp_path: Path) -> None:
+    """An episode written with ``--carmen-logs`` and replayed follows the rollout's belief.
+
+    The replay gets the same scans and, up to round-off, the same odometry increments,
+    and uses the reset's scan as the wrapper does (``start_scan="matcher"``).
+    """
+    args = ["--agent", "frontier", "--env", vslam_gym.EXPLORE_ID, "--episodes", "1"]
+    args += ["--seed", "1000", "--max-steps", "40", "--shield", "--no-progress"]
+    assert main([*args, "--carmen-logs", "--out", str(tmp_path)]) == 0
+    closed = json.loads((tmp_path / "metrics.json").read_text())
+    assert closed["carmen_logs"] is True
+    path = tmp_path / "logs" / "episode_1000.log.gz"
+    result = replay(path, odometry="logged", start_scan="matcher")
+    metrics = result["metrics"]
+    assert metrics["completed"] and metrics["scans"] == 41
+    with open(tmp_path / "steps.csv") as f:
+        rows = list(csv.DictReader(f))
+    loop = np.array([[float(r["slam_x"]), float(r["slam_y"])] for r in rows])
+    assert np.abs(result["slam"][:, :2] - loop).max() < 1e-4  # round-off grows, slowly
+    true = np.array([[float(r["true_x"]), float(r["true_y"])] for r in rows])
+    np.testing.assert_allclose(result["true"][:, :2], true, atol=1e-12)
+    episode = closed["per_episode"][0]
+    assert metrics["ate_rmse_m"] == pytest.approx(episode["ate_m"], abs=1e-4)
+    assert 0.0 < metrics["nees_mean"] < 100.0 and 0.0 <= metrics["nees_in_band_fraction"] <= 1.0
+    with pytest.raises(ValueError, match="carmen_logs=True needs an out_dir"):
+        evaluate_agent("random", vslam_gym.EXPLORE_ID, episodes=1, carmen_logs=True)

@@ -15,10 +15,12 @@ from vslam_gym.logs import (
     CarmenConfig,
     CarmenFormatError,
     CarmenLog,
+    CarmenRecorder,
     integrate_increments,
     logged_increments,
     read_carmen,
     synthetic_increments,
+    write_carmen,
 )
 from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.motion import increments_between, predict_pose
@@ -248,3 +250,110 @@ def test_synthetic_noise_follows_the_model(intel: CarmenLog) -> None:
     np.testing.assert_allclose((noisy[0] - true[0]) / np.sqrt(var[0]), expected)
     with pytest.raises(ValueError, match="alphas"):
         synthetic_increments(intel, seed=0, alphas=(0.1, -0.1, 0.0, 0.0))
+
+
+# ---------------------------------------------------------------------------- writing
+
+BEAMS = np.linspace(np.pi / 2, -np.pi / 2, 181)  # the simulator's lidar: +90 .. -90 deg
+
+
+def _episode(steps: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ranges of a closed room (no beam without return), true poses and odometry poses.
+
+    Step 3 (from 4 scans on) drives backwards: its odometry increment has a negative
+    translation.
+    """
+    rng = np.random.default_rng(4)
+    increments = [np.array([0.05, 0.2, -0.02]) for _ in range(steps - 1)]
+    if steps > 3:
+        increments[2] = np.array([0.01, -0.15, 0.03])  # a reverse, as the simulator reports it
+    odometry = [np.array([1.0, -2.0, 0.4])]
+    for u in increments:
+        odometry.append(predict_pose(odometry[-1], u))
+    true = np.array(odometry) + rng.normal(0.0, 0.01, (steps, 3))
+    ranges = rng.uniform(0.5, 9.0, (steps, BEAMS.size))
+    return ranges, true, np.array(odometry), np.array(increments)
+
+
+def test_a_written_log_reads_back_exactly(tmp_path: Path) -> None:
+    """Ranges, poses and the odometry's increments, reverse included, survive the round trip."""
+    ranges, true, odometry, increments = _episode()
+    for name in ("episode.log", "episode.log.gz"):
+        path = write_carmen(tmp_path / name, ranges, BEAMS, true, odometry, max_range=30.0)
+        log = read_carmen(path)
+        assert log.num_scans == 6 and log.num_beams == 181
+        np.testing.assert_array_equal(log.ranges, ranges)
+        np.testing.assert_array_equal(log.poses, true)
+        np.testing.assert_array_equal(log.scan_odometry, odometry)
+        np.testing.assert_allclose(log.bearings, BEAMS, atol=1e-12)
+        # a closed room: no beam reaches the max range, and none is taken for "no return"
+        assert log.max_range == 30.0 and log.no_return_threshold == 30.0
+        assert not log.no_return.any()
+        got = logged_increments(log)
+        np.testing.assert_allclose(got, increments, atol=1e-12)
+        assert got[2, 1] < 0.0 and abs(got[2, 0]) < np.pi / 2  # the reverse's own form
+
+
+def test_a_beam_at_the_max_range_reads_as_no_return(tmp_path: Path) -> None:
+    ranges, true, odometry, _ = _episode(2)
+    ranges[1, 7] = 30.0
+    log = read_carmen(write_carmen(tmp_path / "e.log", ranges, BEAMS, true, odometry, 30.0))
+    assert np.flatnonzero(log.no_return[1]) == [7] and not log.no_return[0].any()
+    # an explicit threshold still wins over the log's PARAM
+    log = read_carmen(tmp_path / "e.log", CarmenConfig(no_return_threshold=8.0))
+    assert log.no_return.sum() == (ranges >= 8.0).sum()
+
+
+def test_the_recorder_writes_what_the_env_gave(tmp_path: Path) -> None:
+    ranges, true, odometry, increments = _episode(4)
+    recorder = CarmenRecorder(BEAMS, max_range=30.0, period=0.1)
+    for k in range(4):
+        recorder.add(ranges[k], true[k], odometry[k])
+    assert len(recorder) == 4
+    log = read_carmen(recorder.write(tmp_path / "r.log.gz"))
+    np.testing.assert_array_equal(log.ranges, ranges)
+    np.testing.assert_allclose(log.times, [0.0, 0.1, 0.2, 0.30000000000000004])
+    np.testing.assert_allclose(logged_increments(log), increments[:3], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"ranges": np.full((2, 181), np.nan)}, "ranges must be finite"),
+        ({"ranges": np.full((2, 181), 31.0)}, "within"),
+        ({"ranges": np.ones(181)}, r"\(N, n\)"),
+        ({"bearings": BEAMS[:-1]}, "bearings must have shape"),
+        ({"bearings": BEAMS[::-1]}, "descending"),
+        ({"bearings": BEAMS**3 / 3}, "evenly spaced"),
+        ({"poses": np.full((2, 3), np.inf)}, "poses must be a finite"),
+        ({"odometry_poses": np.zeros((3, 3))}, r"odometry_poses must be a finite \(2, 3\)"),
+        ({"max_range": 0.0}, "max_range"),
+        ({"period": -1.0}, "period"),
+    ],
+)
+def test_writing_bad_input_raises_and_names_it(tmp_path: Path, change: dict, match: str) -> None:
+    ranges, true, odometry, _ = _episode(2)
+    args = {"ranges": ranges, "bearings": BEAMS, "poses": true, "odometry_poses": odometry}
+    args |= {"max_range": 30.0, "period": 0.1} | change
+    with pytest.raises(ValueError, match=match):
+        write_carmen(tmp_path / "bad.log", **args)
+    assert not (tmp_path / "bad.log").exists()
+
+
+def test_the_recorder_refuses_bad_scans_and_an_empty_write(tmp_path: Path) -> None:
+    recorder = CarmenRecorder(BEAMS, max_range=30.0)
+    with pytest.raises(ValueError, match="nothing recorded"):
+        recorder.write(tmp_path / "empty.log")
+    with pytest.raises(ValueError, match="ranges must have shape"):
+        recorder.add(np.ones(10), np.zeros(3), np.zeros(3))
+    with pytest.raises(ValueError, match="odometry_pose must be a finite"):
+        recorder.add(np.ones(181), np.zeros(3), np.array([0.0, np.nan, 0.0]))
+    assert len(recorder) == 0  # nothing half-recorded
+
+
+def test_a_bad_max_range_param_names_its_line(tmp_path: Path) -> None:
+    text = SMALL_LOG.replace(
+        "PARAM laser_front_laser_resolution", "PARAM laser_front_laser_max_range -3 x 0\nPARAM x"
+    )
+    with pytest.raises(CarmenFormatError, match="laser_front_laser_max_range must be finite"):
+        read_carmen(write(tmp_path, text))

@@ -27,6 +27,9 @@ KEYS = {
     "odom_ate_rmse_m",
     "final_error_m",
     "heading_rmse_rad",
+    "nees_mean",
+    "nees_in_band_fraction",
+    "start_scan",
     "landmarks",
     "step_ms_median",
     "step_ms_p95",
@@ -94,6 +97,12 @@ def test_replay_of_a_written_log_and_bad_mode(tmp_path):
     assert result["metrics"]["completed"] and result["metrics"]["scans"] == 6
     with pytest.raises(ValueError, match="odometry must be one of"):
         replay(path, "wheel")
+    with pytest.raises(ValueError, match="start_scan"):
+        replay(path, "synthetic", start_scan="first")
+    # scan 0 as the matcher's first keyframe only: the first pose is the initial one
+    matcher = replay(path, "synthetic", seed=1, start_scan="matcher")
+    assert matcher["metrics"]["start_scan"] == "matcher" and matcher["metrics"]["completed"]
+    np.testing.assert_array_equal(matcher["slam"][0], matcher["true"][0])
 
 
 def test_range_perturbation_reaches_the_filter_and_is_bounded(tmp_path):

@@ -20,18 +20,23 @@ from typing import Any
 import numpy as np
 
 from vslam_gym.evaluation import (
+    START_SCAN_MODES,
     add_jobs_argument,
     add_overrides_argument,
     add_range_perturbation_argument,
     check_range_perturbation,
+    check_start_scan,
     final_position_error,
     heading_rmse,
     in_workers,
     json_safe,
+    nees_summary,
+    pose_nees,
     position_ate_rmse,
     progress_bar,
     seeds_argument,
     timing_summary,
+    use_start_scan,
     write_tum,
 )
 from vslam_gym.logs import (
@@ -42,8 +47,10 @@ from vslam_gym.logs import (
     read_carmen,
     synthetic_increments,
 )
+from vslam_gym.logs.carmen import PARAM_FOV, PARAM_RESOLUTION
 from vslam_gym.slam.config import PREALIGN_MODES, SensorConfig
 from vslam_gym.slam.filter import SlamConfig, VertexSLAM
+from vslam_gym.slam.motion import compose
 
 ODOMETRY_MODES = ("logged", "synthetic")
 """Where the odometry increments come from."""
@@ -56,12 +63,20 @@ DEFAULT_SIGMA_BEARING_DEG = 0.2
 
 
 def sensor_for_log(log: CarmenLog, sigma_range: float, sigma_bearing_deg: float) -> SensorConfig:
-    """The estimator's sensor model for a log: FOV and resolution from its bearings."""
+    """The estimator's sensor model for a log: FOV and resolution from its bearings.
+
+    The log's ``laser_front_laser_fov`` and ``laser_front_laser_resolution`` ``PARAM``
+    lines, where it has them (a log written by :func:`vslam_gym.logs.write_carmen`), give
+    them exactly.
+    """
     res = float(np.rad2deg(np.median(-np.diff(log.bearings))))
     fov = float(np.rad2deg(log.bearings[0] - log.bearings[-1]))
     half = max(abs(float(np.rad2deg(log.bearings[0]))), abs(float(np.rad2deg(log.bearings[-1]))))
+    fov = max(fov, 2.0 * half)
+    if PARAM_FOV in log.params and PARAM_RESOLUTION in log.params:
+        fov, res = float(log.params[PARAM_FOV]), float(log.params[PARAM_RESOLUTION])
     return SensorConfig(
-        fov_deg=max(fov, 2.0 * half),
+        fov_deg=fov,
         resolution_deg=res,
         max_range=float(log.max_range),
         sigma_range=sigma_range,
@@ -85,10 +100,16 @@ def replay(
     overrides: Mapping[str, Any] | None = None,
     range_perturbation: float = 0.0,
     bearing_offset_deg: float = 0.0,
+    start_scan: str = "map",
 ) -> dict[str, Any]:
     """Feed a log to :class:`VertexSLAM` scan by scan; return the metrics and trajectories.
 
-    Every scan is a step, scan 0 included (with zero odometry, at the initial pose).
+    Every scan after the first is a step. Scan 0, taken at the initial pose, is used as
+    ``start_scan`` says (:func:`~vslam_gym.evaluation.use_start_scan`): ``"map"`` (the
+    default) a step without motion, ``"matcher"`` the whole-scan matcher's first keyframe
+    only (as the SLAM wrapper and ``vslam-gym evaluate`` use the scan of ``reset``: the
+    replay of a log written by ``agents/evaluate_agents.py --carmen-logs`` then follows
+    the closed-loop run), ``"none"`` unused.
 
     ``overrides`` (configuration sections, e.g. ``{"filter": {...}, "matcher": {...}}``,
     as ``vslam-gym replay --set``) apply over the preset; ``config`` replaces the preset's
@@ -102,12 +123,15 @@ def replay(
 
     Returns:
         A dict with ``metrics`` (``scans``, ``completed``, ``ate_rmse_m``,
-        ``odom_ate_rmse_m``, ``final_error_m``, ``heading_rmse_rad``, ``landmarks``,
+        ``odom_ate_rmse_m``, ``final_error_m``, ``heading_rmse_rad``, ``nees_mean`` and
+        ``nees_in_band_fraction`` (the pose NEES against the log's poses: meaningful where
+        they are the truth, as in a simulated episode's log), ``landmarks``,
         ``step_ms_median``, ``step_ms_p95``, ``step_ms_parts`` (per part of a step,
         ``Belief.step_ms_parts``: its ``median`` and ``mean`` over the scans [ms]),
         ``prealign``, ``prealigned_fraction`` (steps that used the whole-scan match),
-        ``range_perturbation``, ``bearing_offset_deg``, ``sensor`` (the lidar model: FOV
-        and resolution from the log's bearings, maximum range, noise, offset),
+        ``range_perturbation``, ``bearing_offset_deg``, ``start_scan``, ``sensor`` (the
+        lidar model: FOV and resolution from the log's bearings, maximum range, noise,
+        offset),
         ``loop_closures`` (steps that fused a revisit match, ``FilterConfig.loop_closure``),
         ``error`` when not completed) and the ``true``, ``odometry`` and ``slam`` pose
         arrays ``(T, 3)``, ``times`` and the final ``belief``.
@@ -119,6 +143,7 @@ def replay(
     """
     if odometry not in ODOMETRY_MODES:
         raise ValueError(f"odometry must be one of {ODOMETRY_MODES}, got {odometry!r}")
+    check_start_scan(start_scan)
     range_scale = 1.0 + check_range_perturbation(range_perturbation)
     if config is not None and overrides:
         raise ValueError("give either config or overrides, not both")
@@ -138,6 +163,8 @@ def replay(
     sensor = sensor_for_log(log, sigma_range, sigma_bearing_deg)
     slam = VertexSLAM(sensor, config, initial_pose=log.poses[0])
     slam_poses: list[np.ndarray] = []
+    lidar_poses: list[np.ndarray] = []
+    lidar_covs: list[np.ndarray] = []
     step_ms: list[float] = []
     parts: dict[str, list[float]] = {}
     prealigned = loop_closures = 0
@@ -145,15 +172,18 @@ def replay(
     bar = progress_bar(n, Path(path).name, progress, leave=True, unit="scan")
     belief = slam.belief
     for k in range(n):
-        # Scan 0 is taken at the initial pose: a step without motion.
-        u = np.zeros(3) if k == 0 else increments[k - 1]
         try:
             ranges = log.ranges[k] if range_scale == 1.0 else log.ranges[k] * range_scale
-            belief = slam.step(u, ranges, log.bearings)
+            if k == 0:  # taken at the initial pose
+                belief = use_start_scan(slam, start_scan, ranges, log.bearings)
+            else:
+                belief = slam.step(increments[k - 1], ranges, log.bearings)
         except (ValueError, np.linalg.LinAlgError) as exc:  # report, do not hide
             completed, error = False, f"scan {k}: {type(exc).__name__}: {exc}"
             break
         slam_poses.append(belief.robot_pose)
+        lidar_poses.append(belief.pose)
+        lidar_covs.append(belief.pose_cov)
         step_ms.append(belief.step_ms)
         for name, ms in belief.step_ms_parts.items():
             parts.setdefault(name, []).append(ms)
@@ -167,6 +197,16 @@ def replay(
     true = log.poses[: slam_arr.shape[0]]
     odo = integrate_increments(log.poses[0], increments)[: slam_arr.shape[0]]
     finite = bool(np.all(np.isfinite(slam_arr)))
+    # the pose covariance is the lidar's: its NEES against the log's poses moved to the lidar
+    offset = np.asarray(sensor.lidar_offset, dtype=float)
+    true_lidar = np.array([compose(pose, offset) for pose in true]).reshape(-1, 3)
+    nees = nees_summary(
+        pose_nees(
+            np.array(lidar_poses).reshape(-1, 3),
+            np.array(lidar_covs).reshape(-1, 3, 3),
+            true_lidar,
+        )
+    )
     median_ms, p95_ms = timing_summary(np.array(step_ms))
     metrics: dict[str, Any] = {
         "log": str(path),
@@ -180,6 +220,8 @@ def replay(
         "odom_ate_rmse_m": position_ate_rmse(odo, true),
         "final_error_m": final_position_error(slam_arr, true),
         "heading_rmse_rad": heading_rmse(slam_arr, true),
+        "nees_mean": nees["nees_mean"],
+        "nees_in_band_fraction": nees["nees_in_band_fraction"],
         "landmarks": len(belief.landmarks),
         "step_ms_median": median_ms,
         "step_ms_p95": p95_ms,
@@ -191,6 +233,7 @@ def replay(
         "prealigned_fraction": prealigned / max(len(step_ms), 1),
         "range_perturbation": float(range_perturbation),
         "bearing_offset_deg": float(bearing_offset_deg),
+        "start_scan": start_scan,
         "sensor": {
             "fov_deg": sensor.fov_deg,
             "resolution_deg": sensor.resolution_deg,
@@ -315,6 +358,14 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
         "log whose lidar convention is not Carmen's; benchmarks/log_bearing_check.py tells "
         "it from the log's poses (default %(default)s, right for the Radish logs)",
     )
+    parser.add_argument(
+        "--start-scan",
+        choices=START_SCAN_MODES,
+        default="map",
+        help="what the filter does with scan 0, taken at the initial pose: a step without "
+        "motion ('map', default), the matcher's first keyframe ('matcher', as the SLAM "
+        "wrapper and vslam-gym evaluate do) or nothing ('none')",
+    )
     add_range_perturbation_argument(parser)
     add_jobs_argument(parser, "seeds")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -398,6 +449,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         overrides=args.overrides,
         range_perturbation=args.range_perturbation,
         bearing_offset_deg=args.bearing_offset_deg,
+        start_scan=args.start_scan,
     )
     out = Path(args.out)
     if len(seeds) == 1:

@@ -38,6 +38,7 @@ from typing import IO
 
 import numpy as np
 
+from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.motion import compose, increments_between, inverse, predict_pose
 
 __all__ = [
@@ -64,6 +65,9 @@ PARAM_FOV = "laser_front_laser_fov"
 """``PARAM`` with the front laser's field of view [deg]."""
 PARAM_LASER_OFFSET = "robot_frontlaser_offset"
 """``PARAM`` with the forward offset [m] of the front laser from the robot origin."""
+PARAM_MAX_RANGE = "laser_front_laser_max_range"
+"""``PARAM`` with the range [m] the front laser reports for "no return" (written by
+:func:`vslam_gym.logs.write_carmen`; the Radish logs have none)."""
 DEFAULT_ALPHAS = (0.01, 0.005, 0.005, 0.001)
 """Thrun odometry-model coefficients ``(a1, a2, a3, a4)`` of the synthetic odometry."""
 
@@ -83,9 +87,13 @@ class CarmenConfig:
     Attributes:
         no_return_fraction: readings ``>= no_return_fraction * max(all readings)`` are
             "no return" (the sentinel is the largest value in a log: 81.83 m Intel,
-            50.00 m ACES). Used when ``no_return_threshold`` is ``None``.
+            50.00 m ACES). Used when ``no_return_threshold`` is ``None`` and the log
+            has no ``laser_front_laser_max_range`` ``PARAM``.
         no_return_threshold: absolute threshold [m]: readings at or above it are "no
-            return"; overrides ``no_return_fraction``.
+            return"; overrides the ``PARAM`` and ``no_return_fraction``. Without it, a
+            log's ``laser_front_laser_max_range`` ``PARAM`` is the threshold (a log of
+            a closed room may have no "no return" reading at all, so its largest
+            reading would be taken for the sentinel).
         max_range: the range [m] no-return readings are set to, and beyond which any
             reading counts as no return (e.g. 30.0 to clip as the thesis did). ``None``:
             the no-return threshold itself.
@@ -227,6 +235,17 @@ def _lines(stream: IO[str]) -> Iterator[tuple[int, list[str]]]:
             yield number, tokens
 
 
+def _param_length(params: dict[str, str], name: str) -> float:
+    """A ``PARAM`` that must be a positive finite length [m]."""
+    try:
+        value = float(params[name])
+    except ValueError:
+        raise CarmenFormatError(f"PARAM {name} must be a number, got {params[name]!r}") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise CarmenFormatError(f"PARAM {name} must be finite and > 0, got {params[name]!r}")
+    return value
+
+
 def _bearings(num_beams: int, params: dict[str, str], config: CarmenConfig) -> np.ndarray:
     """Descending ``(n,)`` bearings [rad]: Carmen's right-to-left order reversed.
 
@@ -322,11 +341,12 @@ def read_carmen(
         raise CarmenFormatError(f"{name}: no FLASER scan in the log")
 
     raw = np.asarray(scans, dtype=float)[:, ::-1]  # Carmen right-to-left -> descending bearing
-    threshold = (
-        cfg.no_return_threshold
-        if cfg.no_return_threshold is not None
-        else cfg.no_return_fraction * float(raw.max())
-    )
+    if cfg.no_return_threshold is not None:
+        threshold = cfg.no_return_threshold
+    elif PARAM_MAX_RANGE in params:
+        threshold = _param_length(params, PARAM_MAX_RANGE)
+    else:
+        threshold = cfg.no_return_fraction * float(raw.max())
     max_range = cfg.max_range if cfg.max_range is not None else threshold
     no_return = (raw >= threshold) | (raw >= max_range)
     ranges = np.where(no_return, max_range, raw)
@@ -358,7 +378,12 @@ def logged_increments(log: CarmenLog) -> np.ndarray:
     Step ``k`` (scan ``k`` to ``k + 1``) is the relative pose
     ``inverse(P_k) (+) O``, with ``P_k`` scan ``k``'s corrected pose and ``O`` the last
     ``ODOM`` before scan ``k + 1`` (the logs re-anchor ODOM at every scan), expressed as
-    increments ``[rot1 [rad], trans [m], rot2 [rad]]``.
+    increments ``[rot1 [rad], trans [m], rot2 [rad]]``. When that ``ODOM``'s
+    translational velocity ``tv`` is negative (the robot drove backwards) and the
+    motion points backwards, ``trans`` is negative and ``rot1`` within ``+-pi/2``, as the
+    simulator's odometry reports a reverse (:mod:`vslam_gym.sim.odometry`; the same pose
+    change, without the textbook form's ``rot1 ~ +-pi`` and its large rotation noise);
+    the Radish logs log ``tv`` 0 throughout, so their increments keep the textbook form.
 
     Returns:
         ``(N - 1, 3)`` increments.
@@ -381,6 +406,9 @@ def logged_increments(log: CarmenLog) -> np.ndarray:
             )
         relative = compose(inverse(log.poses[k]), log.odometry[last[k]])
         out[k] = increments_between(origin, relative)
+        if log.odometry_velocities[last[k], 0] < 0.0 and abs(out[k, 0]) > math.pi / 2.0:
+            rot1 = float(wrap_angle(out[k, 0] - math.pi))
+            out[k] = (rot1, -out[k, 1], float(wrap_angle(relative[2] - rot1)))
     return out
 
 
