@@ -169,6 +169,9 @@ def test_replay_set_applies_options_over_the_preset(tmp_path, capsys):
     assert metrics["prealign"] == "none"  # the logs preset's "odometry" was replaced
     assert metrics["prealigned_fraction"] == 0
     assert metrics["overrides"] == overrides and metrics["completed"]
+    assert metrics["start_scan"] == "map"  # the default: scan 0 is a step
+    assert main([*args, "--start-scan", "none"]) == 0
+    assert json.loads((out / "metrics.json").read_text())["start_scan"] == "none"
     with pytest.raises(SystemExit) as exc:
         main([*args, "--set", '{"filter": {"candidate_max_median_distanse": 0.5}}'])
     assert exc.value.code == 2

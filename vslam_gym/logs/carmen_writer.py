@@ -58,6 +58,7 @@ HOST = "vslam-gym"
 
 
 def _check_poses(name: str, poses: np.ndarray, count: int) -> np.ndarray:
+    """``poses`` as a finite ``(count, 3)`` float array, else a ValueError naming ``name``."""
     arr = np.asarray(poses, dtype=float)
     if arr.shape != (count, 3) or not np.isfinite(arr).all():
         raise ValueError(f"{name} must be a finite ({count}, 3) array, got shape {arr.shape}")
