@@ -3,7 +3,8 @@
 A simulated episode written this way is a log like the real ones: ``vslam-gym replay``
 runs any estimator configuration on exactly the same scans and odometry (a paired
 comparison, where closed-loop runs of an explorer drive different paths), and other 2-D
-SLAM packages that read Carmen logs get the same data with its ground truth.
+SLAM packages that read Carmen logs find the raw dead reckoning in the ``FLASER`` lines'
+odometry fields (the ``ODOM`` lines are re-anchored at the true poses, below).
 
 The log follows the conventions :func:`~vslam_gym.logs.read_carmen` reads (those of the
 Radish "corrected" logs):
