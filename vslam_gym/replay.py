@@ -69,12 +69,12 @@ def sensor_for_log(log: CarmenLog, sigma_range: float, sigma_bearing_deg: float)
     lines, where it has them (a log written by :func:`vslam_gym.logs.write_carmen`), give
     them exactly.
     """
-    res = float(np.rad2deg(np.median(-np.diff(log.bearings))))
-    fov = float(np.rad2deg(log.bearings[0] - log.bearings[-1]))
-    half = max(abs(float(np.rad2deg(log.bearings[0]))), abs(float(np.rad2deg(log.bearings[-1]))))
-    fov = max(fov, 2.0 * half)
     if PARAM_FOV in log.params and PARAM_RESOLUTION in log.params:
         fov, res = float(log.params[PARAM_FOV]), float(log.params[PARAM_RESOLUTION])
+    else:
+        res = float(np.rad2deg(np.median(-np.diff(log.bearings))))
+        ends = np.abs(np.rad2deg(log.bearings[[0, -1]]))
+        fov = max(float(np.rad2deg(log.bearings[0] - log.bearings[-1])), 2.0 * float(ends.max()))
     return SensorConfig(
         fov_deg=fov,
         resolution_deg=res,
