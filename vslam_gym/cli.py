@@ -246,11 +246,18 @@ def _add_replay(subparsers: argparse._SubParsersAction) -> None:
     add_replay_parser(subparsers)
 
 
+def _add_compare(subparsers: argparse._SubParsersAction) -> None:
+    from vslam_gym.compare import add_compare_parser
+
+    add_compare_parser(subparsers)
+
+
 SUBCOMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
     "run": _add_run,
     "worlds": _add_worlds,
     "evaluate": _add_evaluate,
     "replay": _add_replay,
+    "compare": _add_compare,
 }
 """Subcommand name -> function adding its parser (which sets ``handler``)."""
 

@@ -1040,8 +1040,8 @@ def sem_metrics(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, float]:
 
     ``std(ddof=1) / sqrt(n)`` over the seeds with a finite value (NaN with fewer than
     two). The per-seed spread includes the filter's sensitivity to round-off, which
-    pairing seeds between two configurations does not remove: compare two
-    configurations' means against their standard errors, unpaired.
+    pairing seeds between two configurations does not remove (:mod:`vslam_gym.compare`
+    pairs them and reports the paired t statistic, whose spread includes it).
     """
     if not per_seed:
         raise ValueError("no seed to average")
