@@ -1022,6 +1022,8 @@ class VertexSLAM:
         to_map = frame_rotation(self._matcher_pose[2])
         result = None
         if len(self._local_map):
+            if self.config.matcher.normal_agreement_deg > 0 and self._normals is None:
+                self._normals = scan_normals(points, self.config.matcher)
             try:
                 result = match_scan(
                     points,
@@ -1029,6 +1031,7 @@ class VertexSLAM:
                     compose(self._matcher_pose, delta),
                     to_map @ cov @ to_map.T,
                     self.config.matcher,
+                    normals=self._normals,
                 )
             except (ValueError, np.linalg.LinAlgError):  # degenerate numbers: no match
                 result = None
@@ -1048,7 +1051,8 @@ class VertexSLAM:
         Only when that pose makes a keyframe (``ScanMatcherConfig.keyframe_distance``).
         """
         if self._local_map.is_keyframe(self._matcher_pose):
-            self._normals = scan_normals(points, self.config.matcher)
+            if self._normals is None:
+                self._normals = scan_normals(points, self.config.matcher)
             self._local_map.add(points, self._matcher_pose, self._normals)
 
     def _fuse_match(self, points: np.ndarray) -> bool:
@@ -1103,7 +1107,9 @@ class VertexSLAM:
     def _close_loop(self, points: np.ndarray) -> bool:
         """Fuse the scan's revisit match as a pose measurement; whether one was fused."""
         assert self._loop is not None
-        found = self._loop.match(points, self._mu[:3], self._gate_covariance(), self._measurements)
+        found = self._loop.match(
+            points, self._mu[:3], self._gate_covariance(), self._measurements, self._normals
+        )
         if found is None:
             return False
         cfg = self.config.filter

@@ -286,7 +286,12 @@ class LoopClosure:
         self._last_fused = int(now)
 
     def match(
-        self, points: np.ndarray, pose: np.ndarray, gate_cov: np.ndarray, now: int
+        self,
+        points: np.ndarray,
+        pose: np.ndarray,
+        gate_cov: np.ndarray,
+        now: int,
+        normals: ScanNormals | None = None,
     ) -> LoopMatch | None:
         """The scan's revisit match from the predicted lidar ``pose``, or None.
 
@@ -297,6 +302,8 @@ class LoopClosure:
                 the span of the matcher's heading hypotheses and, plus the match's
                 covariance, the Mahalanobis test.
             now: the current measurement update (keyframe ages).
+            normals: the scan's :func:`scan_normals` when the caller has them (for the
+                matcher's ``normal_agreement_deg``; computed when needed and None).
         """
         self.keyframes.now = int(now)
         if self._last_fused is not None and now - self._last_fused < self.cooldown:
@@ -305,7 +312,9 @@ class LoopClosure:
         if self._tracking is not None and self._last_fused == now - max(self.cooldown, 1):
             config = self._tracking  # the belief agrees with the earlier visit already
         try:
-            result = match_scan(points, self.keyframes, pose, gate_cov, config, use_prior=False)
+            result = match_scan(
+                points, self.keyframes, pose, gate_cov, config, use_prior=False, normals=normals
+            )
         except (ValueError, np.linalg.LinAlgError):  # degenerate numbers: no match
             return None
         if result is None or result.inlier_fraction < self.min_inlier_fraction:

@@ -104,6 +104,12 @@ class ScanMatcherConfig:
             34 (docs/measurements.md, "Session 34"): the ``frontier`` explorer's mean
             pose NEES on 60 held-out worlds 29.4 -> 15.2 at level coverage and ATE,
             but the routes no better (single_landmark position ATE 0.096 -> 0.110 m).
+        normal_agreement_deg: a scan point and its nearest map point correspond only
+            when their normals, each turned toward the lidar that saw it, are at most
+            this far apart [deg] (a thin wall's other face, or a neighbour across a
+            corner, is no correspondence); a point without a normal keeps its
+            correspondence. 0: off (the ``logs`` and ``fast`` presets). Measured in
+            session 39 (docs/measurements.md, "Session 39").
         heading_sigmas: heading hypotheses span ``+- heading_sigmas * sigma_theta`` of
             the predicted heading.
         heading_step_deg: spacing [deg] of the hypotheses (well inside the convergence
@@ -207,6 +213,7 @@ class ScanMatcherConfig:
     normal_max_radius: float = 3.0
     normal_max_flatness: float = 0.02
     fit_keyframe_points: bool = False
+    normal_agreement_deg: float = 0.0
     heading_sigmas: float = 4.0
     heading_step_deg: float = 5.0
     max_hypotheses: int = 25
@@ -304,6 +311,11 @@ class ScanMatcherConfig:
             raise ValueError(
                 "ScanMatcherConfig.fit_keyframe_points must be a bool, got "
                 f"{self.fit_keyframe_points!r}"
+            )
+        if not (np.isfinite(self.normal_agreement_deg) and 0 <= self.normal_agreement_deg <= 90):
+            raise ValueError(
+                "ScanMatcherConfig.normal_agreement_deg must lie in [0, 90] (0: off), got "
+                f"{self.normal_agreement_deg}"
             )
         if self.on_ambiguity not in AMBIGUITY_MODES:
             raise ValueError(
@@ -430,6 +442,16 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> ScanNormals:
         if config.fit_keyframe_points:
             offsets[found] = _offsets_from_patch_curves(d[:, ok], normals[found], w)
     return ScanNormals(normals, valid, offsets)
+
+
+def toward_lidar(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``normals`` ``(m, 2)`` turned to face the lidar at the origin.
+
+    ``points`` ``(m, 2)``: the points they belong to, lidar frame [m]; a zero normal stays
+    zero.
+    """
+    away = np.einsum("ij,ij->i", points, normals) > 0.0
+    return np.where(away[:, None], -normals, normals)
 
 
 def _offsets_from_patch_curves(d: np.ndarray, normals: np.ndarray, centre: int) -> np.ndarray:
@@ -569,8 +591,11 @@ class LocalMap:
             kept = kept - fit.offsets[valid, None] * fit.normals[valid]
         c, s = np.cos(pose[2]), np.sin(pose[2])
         rot = np.array([[c, s], [-s, c]])
+        normals = fit.normals[valid]
+        if self.config.normal_agreement_deg > 0:  # the test needs them toward the lidar
+            normals = toward_lidar(points[valid], normals)
         self._points.append(_transform(pose, kept))
-        self._normals.append(fit.normals[valid] @ rot)
+        self._normals.append(normals @ rot)
         self._poses.append(pose.copy())
         if self.config.revisit_radius <= 0 and len(self._points) > self.config.keyframes:
             del self._points[0], self._normals[0], self._poses[0]  # never needed again
@@ -676,12 +701,17 @@ class _Residuals:
 
 
 def _residuals(
-    poses: np.ndarray, points: np.ndarray, reference: Reference, gate: float
+    poses: np.ndarray,
+    points: np.ndarray,
+    reference: Reference,
+    gate: float,
+    agreement: _NormalAgreement | None = None,
 ) -> _Residuals:
     """Point-to-line residuals of ``points`` (lidar frame) at each pose to the map.
 
     A point without a neighbour within ``gate`` [m] gets the reference's sentinel row
-    (zero point and normal): its residual and Jacobian row are zero.
+    (zero point and normal): its residual and Jacobian row are zero. So does a point
+    whose normal disagrees with its neighbour's (``agreement``, None: no test).
     """
     c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
     rx = c * points[:, 0] - s * points[:, 1]  # rotated, (h, n)
@@ -701,7 +731,44 @@ def _residuals(
     along = system[..., :2] * (world - system[..., 2:])
     np.subtract(ny * rx, nx * ry, out=system[..., 2])
     np.add(along[..., 0], along[..., 1], out=system[..., 3])
-    return _Residuals(system, idx < reference.tree.n)
+    matched = idx < reference.tree.n
+    if agreement is not None:
+        sx, sy = agreement.normals[:, 0], agreement.normals[:, 1]
+        cosine = (c * sx - s * sy) * nx + (s * sx + c * sy) * ny  # scan normal rotated
+        disagree = (cosine < agreement.min_cos) & agreement.valid & matched
+        if disagree.any():
+            system[disagree] = 0.0
+            matched &= ~disagree
+    return _Residuals(system, matched)
+
+
+class _NormalAgreement(NamedTuple):
+    """The scan's normals for the test of ``ScanMatcherConfig.normal_agreement_deg``."""
+
+    normals: np.ndarray  # (n, 2) lidar frame, toward the lidar; zero where not valid
+    valid: np.ndarray  # (n,) bool: the point has a normal
+    min_cos: float  # cosine of the largest angle between a scan and a map normal
+
+    @classmethod
+    def of(
+        cls, points: np.ndarray, normals: ScanNormals | None, config: ScanMatcherConfig
+    ) -> _NormalAgreement | None:
+        """The test for ``points``, or None when ``config`` has it off.
+
+        ``normals``: their :func:`scan_normals` (computed here when None).
+        """
+        if config.normal_agreement_deg <= 0:
+            return None
+        fit = normals if normals is not None else scan_normals(points, config)
+        return cls(
+            toward_lidar(points, fit.normals),
+            fit.valid,
+            float(np.cos(np.deg2rad(config.normal_agreement_deg))),
+        )
+
+    def every(self, stride: int) -> _NormalAgreement:
+        """The test for every ``stride``-th point (the coarse phase's points)."""
+        return _NormalAgreement(self.normals[::stride], self.valid[::stride], self.min_cos)
 
 
 def _normal_equations(
@@ -741,6 +808,7 @@ def _gauss_newton(
     keep_after: int = 0,
     keep: int | None = None,
     keep_ratio: float = 0.0,
+    agreement: _NormalAgreement | None = None,
 ) -> np.ndarray:
     """Robust point-to-line Gauss-Newton (plus the prior term) from every start at once.
 
@@ -752,7 +820,7 @@ def _gauss_newton(
     poses = starts.copy()
     scan_info = 1.0 / config.robust_scale**2  # the prior only breaks ties (corridors)
     for k, gate in enumerate(gates):
-        res = _residuals(poses, points, reference, float(gate))
+        res = _residuals(poses, points, reference, float(gate), agreement)
         if 0 < keep_after == k and poses.shape[0] > 1:
             kept = _kept(res, keep, keep_ratio, config)
             if kept.size < poses.shape[0]:
@@ -803,9 +871,10 @@ def _inliers(
     reference: Reference,
     gate: float,
     config: ScanMatcherConfig,
+    agreement: _NormalAgreement | None = None,
 ) -> tuple[_Residuals, np.ndarray]:
     """Residuals at ``poses`` and each pose's inlier fraction ``(h,)``."""
-    res = _residuals(poses, points, reference, gate)
+    res = _residuals(poses, points, reference, gate, agreement)
     return res, res.inliers(config.inlier_distance).sum(axis=1) / points.shape[0]
 
 
@@ -843,6 +912,7 @@ def match_scan(
     prior_cov: np.ndarray,
     config: ScanMatcherConfig | None = None,
     use_prior: bool = True,
+    normals: ScanNormals | None = None,
 ) -> MatchResult | None:
     """Align a scan to the local map from heading hypotheses around ``prior``.
 
@@ -858,6 +928,8 @@ def match_scan(
             corridor's free direction comes from it) and of the returned covariance;
             False: the scan alone (declined when the normals cannot fix the translation;
             use this when the result is fused with the same prior later).
+        normals: ``scan_normals(points, config)`` when the caller has it (for
+            ``config.normal_agreement_deg``; computed here when needed and None).
 
     Returns:
         The aligned pose and covariance, or None when the map is empty, too few points
@@ -866,7 +938,7 @@ def match_scan(
     Raises:
         ValueError: malformed ``points``, ``prior`` or ``prior_cov``.
     """
-    return match_scan_why(points, local_map, prior, prior_cov, config, use_prior)[0]
+    return match_scan_why(points, local_map, prior, prior_cov, config, use_prior, normals)[0]
 
 
 def distinct_poses(poses: np.ndarray, pose: np.ndarray, config: ScanMatcherConfig) -> np.ndarray:
@@ -894,7 +966,8 @@ def local_fit(
     ``max_distance_mid`` shrinking to ``max_distance_end``, no heading hypotheses, no
     prior): where the scan fits around the given pose, to compare a match found
     elsewhere with. ``points``: ``(m, 2)`` lidar frame [m]; ``pose``: ``(3,)`` lidar pose
-    in the map frame. None when the map is empty.
+    in the map frame. None when the map is empty. Without the normal agreement test of
+    ``config.normal_agreement_deg`` (as measured in session 39).
     """
     config = config or local_map.config
     pose = check_pose(pose)
@@ -916,6 +989,7 @@ def match_scan_why(
     prior_cov: np.ndarray,
     config: ScanMatcherConfig | None = None,
     use_prior: bool = True,
+    normals: ScanNormals | None = None,
 ) -> tuple[MatchResult | None, str]:
     """:func:`match_scan` and why it declined (for diagnostics).
 
@@ -945,6 +1019,8 @@ def match_scan_why(
     term = _Prior(prior, info, bool(info.any()))
     starts = _hypotheses(prior, float(np.sqrt(max(prior_cov[2, 2], 0.0))), config)
     coarse = points[:: config.coarse_stride]
+    agreement = _NormalAgreement.of(points, normals, config)
+    coarse_agreement = None if agreement is None else agreement.every(config.coarse_stride)
     poses = _gauss_newton(
         starts,
         coarse,
@@ -954,9 +1030,12 @@ def match_scan_why(
         config,
         keep_after=int(config.coarse_keep_after),
         keep=int(config.coarse_keep),
+        agreement=coarse_agreement,
     )
     poses = _merge(poses, config)
-    _, fraction = _inliers(poses, coarse, reference, config.max_distance_mid, config)
+    _, fraction = _inliers(
+        poses, coarse, reference, config.max_distance_mid, config, coarse_agreement
+    )
     rank = _scores(poses, fraction, term if use_prior else None, config)
     poses = poses[np.argsort(-rank, kind="stable")[: config.refine_candidates]]
     poses = _gauss_newton(
@@ -968,8 +1047,9 @@ def match_scan_why(
         config,
         keep_after=int(config.refine_keep_after),
         keep_ratio=float(config.refine_keep_ratio),
+        agreement=agreement,
     )
-    res, fraction = _inliers(poses, points, reference, config.max_distance_end, config)
+    res, fraction = _inliers(poses, points, reference, config.max_distance_end, config, agreement)
     best = int(np.argmax(_scores(poses, fraction, term if use_prior else None, config)))
     if (
         fraction[best] < config.min_inlier_fraction
