@@ -157,6 +157,10 @@ def test_config_from_dict_and_presets():
     assert SlamConfig().filter.verify_heading_sigma == 3.0
     for name in ("thesis", "logs", "fast"):
         assert SlamConfig.preset(name).filter.verify_heading_sigma == 0.0
+    # the matcher's normal agreement: in the logs preset only (level on the worlds)
+    assert SlamConfig.logs().matcher.normal_agreement_deg == 30.0
+    for name in ("default", "thesis", "fast"):
+        assert SlamConfig.preset(name).matcher.normal_agreement_deg == 0.0
 
 
 # ----------------------------------------------------------------- cached map data

@@ -339,8 +339,8 @@ def test_max_correction_declines_matches_far_from_the_belief(monkeypatch):
     corrections: list[float] = []  # position distance of every revisit match found
     original = lc.LoopClosure.match
 
-    def recording(self, points, pose, gate_cov, now):
-        found = original(self, points, pose, gate_cov, now)
+    def recording(self, points, pose, gate_cov, now, normals=None):
+        found = original(self, points, pose, gate_cov, now, normals)
         if found is not None:
             corrections.append(float(np.hypot(*(found.pose[:2] - pose[:2]))))
         return found

@@ -107,6 +107,13 @@ LOGS_OBSERVATION_INFORMATION_SCALE = 0.1
 scans, synthetic seeds 0-1 and logged, with ``create_beside_candidates=False``
 (position ATE [m], scale 1 -> 0.1): Intel 0.41 0.39 0.48 -> 0.38 0.36 0.49, ACES 1.38
 1.96 2.04 -> 0.69 1.10 1.37."""
+LOGS_MATCHER_NORMAL_AGREEMENT_DEG = 30.0
+"""``ScanMatcherConfig.normal_agreement_deg`` of the ``logs`` preset [deg]. Full Radish
+logs, position ATE [m], 0 -> 30 (session 39, docs/radish.md, "Normal agreement in the
+matcher"): logged odometry, two round-off samples, Intel 0.679 / 0.681 -> 0.413 / 0.413,
+ACES 1.027 / 0.953 -> 0.617 / 0.545; synthetic odometry, seeds 0-19 mean, Intel 0.485
+-> 0.358 (paired t -3.8), ACES 1.229 -> 1.319 (paired t +0.9; seeds 0-4 1.007 ->
+1.000)."""
 DEFAULT_MATCHER_SIGMA_FLOOR = (0.002, 0.002, 0.0005)
 """``ScanMatcherConfig.sigma_floor`` of the default preset ``(x [m], y [m], theta [rad])``:
 the matched motion of ``prealign="odometry"`` and the loop closure's revisit match. The
@@ -213,7 +220,10 @@ class SlamConfig:
         leaves ten times the gate (``icp_stop_beyond_gate=10``: 6-9 % less time per
         scan, accuracy level) and one that alternates stops at its first return
         (``IcpConfig.cycle_returns=1``: the same results up to the tolerances, 3-8 % less
-        time per scan). Figures in docs/radish.md.
+        time per scan). The matcher pairs a scan point with a map point only when their
+        normals agree within 30 deg (:data:`LOGS_MATCHER_NORMAL_AGREEMENT_DEG`, since
+        session 39: the logged odometry's position ATE Intel 0.68 -> 0.41 m, ACES 1.03
+        -> 0.62 m). Figures in docs/radish.md.
 
         The matcher's revisits (older keyframes within 3 m of the prediction, an
         implicit loop closure in the matcher's own frame) were in this preset before the
@@ -309,7 +319,9 @@ class SlamConfig:
             # (2026-11-26, docs/radish.md "Speed, second round"): 3-8 % less time per
             # scan, ATE level.
             icp=IcpConfig(point_to_line=True, cycle_returns=1),
-            matcher=ScanMatcherConfig(on_ambiguity="prior"),
+            matcher=ScanMatcherConfig(
+                on_ambiguity="prior", normal_agreement_deg=LOGS_MATCHER_NORMAL_AGREEMENT_DEG
+            ),
         )
 
     @classmethod
