@@ -20,7 +20,6 @@ from vslam_gym.slam.scan_matching import (
     match_scan,
     scan_normals,
     scan_points,
-    toward_lidar,
 )
 
 L_ROOM = polygon_edges(
@@ -448,12 +447,14 @@ def _both_faces(config: ScanMatcherConfig) -> LocalMap:
     return local
 
 
-def test_normals_turned_toward_the_lidar():
-    points = np.array([[2.0, 0.0], [0.0, -3.0], [1.0, 1.0]])
-    normals = np.array([[1.0, 0.0], [0.0, -1.0], [0.0, 0.0]])
-    turned = toward_lidar(points, normals)
-    assert np.array_equal(turned, [[-1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])
-    assert np.all(np.einsum("ij,ij->i", points, turned) <= 0.0)
+def test_normals_face_the_lidar():
+    """(Their offsets turn with them: see the fitted keyframe points' test.)"""
+    pts = _points((2.0, 2.0, 0.6), L_ROOM, 3)
+    fit = scan_normals(pts, ScanMatcherConfig(fit_keyframe_points=True))
+    assert fit.valid.sum() > 150
+    facing = np.einsum("ij,ij->i", pts[fit.valid], fit.normals[fit.valid])
+    assert np.all(facing < 0.0)  # every normal points from its wall back to the lidar
+    assert np.all(fit.normals[~fit.valid] == 0.0)
 
 
 def test_normal_agreement_keeps_a_scan_off_the_far_face_of_a_thin_wall():

@@ -377,7 +377,8 @@ class ScanNormals(NamedTuple):
     """A scan's surface normals and each point's offset from the curve fitted to its patch.
 
     Attributes:
-        normals: ``(m, 2)`` unit normals, lidar frame; zero where not ``valid``.
+        normals: ``(m, 2)`` unit normals, lidar frame, each facing the lidar (``n . p
+            <= 0``); zero where not ``valid``.
         valid: ``(m,)`` bool, the point has a normal.
         offsets: ``(m,)`` signed distance [m] of each point, along its normal, from
             the parabola fitted to its patch in the patch's line frame (0 where not
@@ -406,8 +407,9 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> ScanNormals:
         config: the ``normal_*`` parameters and ``fit_keyframe_points``.
 
     Returns:
-        :class:`ScanNormals` ``(normals (m, 2), valid (m,), offsets (m,))``; invalid rows
-        have zero normals and offsets.
+        :class:`ScanNormals` ``(normals (m, 2), valid (m,), offsets (m,))``, the normals
+        facing the lidar (the offsets along them); invalid rows have zero normals and
+        offsets.
     """
     points = np.asarray(points, dtype=float)
     m = points.shape[0]
@@ -443,17 +445,13 @@ def scan_normals(points: np.ndarray, config: ScanMatcherConfig) -> ScanNormals:
         valid[found] = True
         if config.fit_keyframe_points:
             offsets[found] = _offsets_from_patch_curves(d[:, ok], normals[found], w)
-    return ScanNormals(normals, valid, offsets)
-
-
-def toward_lidar(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """``normals`` ``(m, 2)`` turned to face the lidar at the origin.
-
-    ``points`` ``(m, 2)``: the points they belong to, lidar frame [m]; a zero normal stays
-    zero.
-    """
+    # Each normal faces the lidar (the sign is free for the point-to-line residual, whose
+    # rows it only negates exactly; the normal agreement test needs it), and its offset,
+    # measured along it, turns with it.
     away = np.einsum("ij,ij->i", points, normals) > 0.0
-    return np.where(away[:, None], -normals, normals)
+    normals[away] *= -1.0
+    offsets[away] *= -1.0
+    return ScanNormals(normals, valid, offsets)
 
 
 def _offsets_from_patch_curves(d: np.ndarray, normals: np.ndarray, centre: int) -> np.ndarray:
@@ -593,11 +591,8 @@ class LocalMap:
             kept = kept - fit.offsets[valid, None] * fit.normals[valid]
         c, s = np.cos(pose[2]), np.sin(pose[2])
         rot = np.array([[c, s], [-s, c]])
-        normals = fit.normals[valid]
-        if self.config.normal_agreement_deg > 0:  # the test needs them toward the lidar
-            normals = toward_lidar(points[valid], normals)
         self._points.append(_transform(pose, kept))
-        self._normals.append(normals @ rot)
+        self._normals.append(fit.normals[valid] @ rot)
         self._poses.append(pose.copy())
         if self.config.revisit_radius <= 0 and len(self._points) > self.config.keyframes:
             del self._points[0], self._normals[0], self._poses[0]  # never needed again
@@ -747,7 +742,7 @@ def _residuals(
 class _NormalAgreement(NamedTuple):
     """The scan's normals for the test of ``ScanMatcherConfig.normal_agreement_deg``."""
 
-    normals: np.ndarray  # (n, 2) lidar frame, toward the lidar; zero where not valid
+    normals: np.ndarray  # (n, 2) lidar frame, facing the lidar; zero where not valid
     valid: np.ndarray  # (n,) bool: the point has a normal
     min_cos: float  # cosine of the largest angle between a scan and a map normal
 
@@ -762,11 +757,7 @@ class _NormalAgreement(NamedTuple):
         if config.normal_agreement_deg <= 0:
             return None
         fit = normals if normals is not None else scan_normals(points, config)
-        return cls(
-            toward_lidar(points, fit.normals),
-            fit.valid,
-            float(np.cos(np.deg2rad(config.normal_agreement_deg))),
-        )
+        return cls(fit.normals, fit.valid, float(np.cos(np.deg2rad(config.normal_agreement_deg))))
 
     def every(self, stride: int) -> _NormalAgreement:
         """The test for every ``stride``-th point (the coarse phase's points)."""
