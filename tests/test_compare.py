@@ -96,6 +96,10 @@ def test_no_common_run_or_metric(tmp_path):
         compare_runs(a, {"seed 1": {"ate_rmse_m": 1.0}})
     with pytest.raises(ValueError, match=r"not a number .*\['label'\]"):
         compare_runs(a, a, ["label"])
+    # a key the runs lack (agents' outputs name their position ATE ``ate_m``)
+    b = {"seed 0": {"ate_m": 1.0}}
+    with pytest.raises(ValueError, match=r"no metric \['ate_rmse_m'\].*did you mean 'ate_m'"):
+        compare_runs(b, b, ["ate_rmse_m"])
     with pytest.raises(ValueError, match="share no numeric metric"):
         compare_runs({"r": {"label": "x"}}, {"r": {"label": "y"}})
 

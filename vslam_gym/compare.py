@@ -26,6 +26,7 @@ each run keyed by its directory relative to the tree.
 from __future__ import annotations
 
 import argparse
+import difflib
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -193,6 +194,17 @@ def compare_runs(
             first = base[keys[0]]
             metrics = sorted(m for m in first if m != "seed" and shared(m))
     else:
+        absent = [m for m in metrics if not all(m in base[k] and m in other[k] for k in keys)]
+        if absent:
+            names = sorted({m for k in keys for m in (*base[k], *other[k])} - {"seed"})
+            hints = [difflib.get_close_matches(m, names, n=1) for m in absent]
+            hint = "".join(
+                f"; {m!r}: did you mean {h[0]!r}?" for m, h in zip(absent, hints, strict=True) if h
+            )
+            raise ValueError(
+                f"no metric {absent} in every paired run of both evaluations{hint} "
+                f"(their metrics: {', '.join(names)})"
+            )
         missing = [m for m in metrics if not shared(m)]
         if missing:
             raise ValueError(f"not a number in every paired run of both evaluations: {missing}")
