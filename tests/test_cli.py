@@ -1,3 +1,5 @@
+import gzip
+
 import pytest
 
 from vslam_gym.cli import build_parser, main, run_route
@@ -42,3 +44,25 @@ def test_bad_input(tmp_path, capsys):
         main(["run", "--world", "single_landmark", "--out", str(tmp_path / "x.jpg")])
     with pytest.raises(SystemExit):
         build_parser().parse_args([])  # a subcommand is required
+
+
+def test_unreadable_files_are_reported_not_raised(tmp_path, capsys):
+    """A missing, truncated or empty log, or a missing world file: exit 2 with the cause."""
+    assert main(["replay", str(tmp_path / "missing.log.gz"), "--out", str(tmp_path / "a")]) == 2
+    assert "missing.log.gz: No such file or directory" in capsys.readouterr().err
+    truncated = tmp_path / "truncated.log.gz"
+    truncated.write_bytes(gzip.compress(b"FLASER 3 1.0 1.0 1.0 0 0 0 0 0 0 0 robot 0\n" * 50)[:40])
+    assert main(["replay", str(truncated), "--out", str(tmp_path / "b")]) == 2
+    assert "truncated file" in capsys.readouterr().err
+    world = str(tmp_path / "missing.toml")
+    assert main(["evaluate", "--world", world, "--seeds", "0", "--out", str(tmp_path / "c")]) == 2
+    assert "missing.toml: No such file or directory" in capsys.readouterr().err
+    # a replay that fails on its first scan names that failure (not the empty metrics)
+    log = tmp_path / "two_beams.log"
+    scan, odom = "FLASER 2 1.0 1.0 0 0 0 0 0 0 0 robot 0\n", "ODOM 0 0 0 0 0 0 0 robot 0\n"
+    log.write_text((scan + odom) * 2 + scan)
+    assert main(["replay", str(log), "--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err
+    assert "scan 0" in err and "estimated must have shape" not in err, err
+    assert main(["replay", str(log), "--out", str(tmp_path / "e"), "--max-scans", "0"]) == 2
+    assert "max_scans must be at least 1" in capsys.readouterr().err

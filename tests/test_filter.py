@@ -101,6 +101,11 @@ def test_loop_closes_and_revisited_object_is_associated():
         ([0.0, 0.1, 0.0], np.r_[np.ones(180), np.nan], "NaN"),
         ([0.0, 0.1, 0.0], np.ones(180), "bearings has 181"),
         ([0.0, 0.1, 0.0], -np.ones(181), ">= 0"),
+        # absurd but finite increments (wrong units, a corrupt log) used to move the pose
+        # and then fail inside the step, leaving every later step failing too
+        ([0.0, 1e10, 0.0], np.ones(181), "translation must be at most 30.0 m"),
+        ([1e155, 0.0, 0.0], np.ones(181), "rotations rot1, rot2"),
+        (["a", 0.1, 0.0], np.ones(181), "3 numbers"),
     ],
 )
 def test_rejected_input_leaves_the_belief_unchanged(odometry, ranges, match):
@@ -202,7 +207,8 @@ def test_integer_settings_reject_non_integers_and_values_below_their_minimum(sec
     ],
 )
 def test_real_settings_outside_their_interval_are_rejected(section, name, bad):
-    with pytest.raises(ValueError, match=f"{name} must lie in "):
+    # a bool is no number: the type check names it before the interval check
+    with pytest.raises(ValueError, match=f"{name} must (lie in |be a number)"):
         SlamConfig.from_dict({section: {name: bad}})
     # the thesis's values at the ends of the intervals are accepted
     assert SlamConfig.thesis().filter.icp_max_pose_mahalanobis == float("inf")

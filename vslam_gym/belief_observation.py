@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from gymnasium import spaces
 
+from vslam_gym.config_utils import check_field_types
 from vslam_gym.slam.filter import Belief
 
 RASTER_CHANNELS = ("object_lines", "unknown_lines", "vertex_uncertainty")
@@ -66,6 +67,7 @@ class BeliefObservationConfig:
     frontier_max_offset: float = 3.0
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if int(self.raster_size) != self.raster_size or self.raster_size < 2:
             raise ValueError(f"raster_size must be an integer >= 2, got {self.raster_size!r}")
         if int(self.frontier_count) != self.frontier_count or self.frontier_count < 0:

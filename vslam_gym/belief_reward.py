@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam_gym.config_utils import dataclass_from_dict
+from vslam_gym.config_utils import check_field_types, dataclass_from_dict
 
 REWARD_PRESETS = ("default", "d_opt", "coverage")
 """Names accepted by :meth:`BeliefRewardConfig.preset`."""
@@ -55,6 +55,7 @@ class BeliefRewardConfig:
     boundary_cell: float = 0.25
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
             if not np.isfinite(value):

@@ -281,6 +281,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as err:  # bad world file, unknown world, bad arguments
         print(f"vslam-gym {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except (OSError, EOFError) as err:  # a missing, unreadable or truncated (gzip) file
+        where = f" {err.filename}" if getattr(err, "filename", None) else ""
+        reason = err.strerror if isinstance(err, OSError) and err.strerror else err
+        kind = "truncated file" if isinstance(err, EOFError) else "cannot read or write"
+        print(f"vslam-gym {args.command}: error: {kind}{where}: {reason}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

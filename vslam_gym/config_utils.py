@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import numbers
 from collections.abc import Mapping
 from typing import Any, TypeVar
+
+import numpy as np
 
 T = TypeVar("T")
 
@@ -73,3 +76,57 @@ def check_intervals(owner: Any, intervals: Mapping[str, str]) -> None:
             inside = bool(above and below)
         if not inside:
             raise ValueError(f"{type(owner).__name__}.{name} must lie in {interval}, got {value!r}")
+
+
+class ConfigTypeError(TypeError, ValueError):
+    """A config field holds a value of the wrong type (a string for a number, and the like)."""
+
+
+@functools.cache
+def _field_kinds(cls: type) -> tuple[tuple[str, str], ...]:
+    """``(name, kind)`` of the fields of ``cls`` whose type :func:`check_field_types` checks.
+
+    ``kind`` is ``bool``, ``int``, ``float`` or ``str``, with a ``?`` after it when
+    ``None`` is allowed too; fields of other types (tuples, nested configs) are left out.
+    """
+    kinds = []
+    for f in dataclasses.fields(cls):
+        # the annotation as written (postponed: a string), or the type itself
+        hint = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+        parts = [p.strip() for p in hint.replace("Optional[", "").rstrip("]").split("|")]
+        optional = "None" in parts and len(parts) == 2
+        base = next((p for p in parts if p != "None"), "") if optional else hint.strip()
+        if base in ("bool", "int", "float", "str"):
+            kinds.append((f.name, base + ("?" if optional else "")))
+    return tuple(kinds)
+
+
+def check_field_types(owner: Any) -> None:
+    """Raise :class:`ConfigTypeError` unless each scalar field of ``owner`` has its type.
+
+    A dataclass's ``bool`` fields take ``True`` / ``False`` only (a JSON ``"false"`` would
+    otherwise count as true), ``float`` fields any real number but a bool, ``int`` fields
+    a number (integrality and minimum: :func:`check_integers`), ``str`` fields strings;
+    ``X | None`` fields ``None`` too. The message names the class, the field and the
+    value. Ranges are the class's own checks.
+    """
+    for name, kind in _field_kinds(type(owner)):
+        value = getattr(owner, name)
+        if kind.endswith("?"):
+            if value is None:
+                continue
+            kind = kind[:-1]
+        if kind == "bool":
+            ok = isinstance(value, bool | np.bool_)
+        elif kind == "str":
+            ok = isinstance(value, str)
+        elif kind == "int":  # integrality and minimum: check_integers, with its message
+            ok = isinstance(value, numbers.Real)
+        else:
+            ok = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+        if not ok:
+            expected = {"bool": "a bool", "int": "an integer", "float": "a number"}
+            raise ConfigTypeError(
+                f"{type(owner).__name__}.{name} must be {expected.get(kind, 'a string')}, "
+                f"got {value!r}"
+            )

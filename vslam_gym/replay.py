@@ -149,6 +149,8 @@ def replay(
         raise ValueError("give either config or overrides, not both")
     if overrides:
         config = SlamConfig.from_dict({"preset": preset, **overrides})
+    if max_scans is not None and not int(max_scans) >= 1:
+        raise ValueError(f"max_scans must be at least 1, got {max_scans!r}")
     log = read_carmen(
         path, CarmenConfig(max_range=max_range, bearing_offset_deg=bearing_offset_deg)
     )
@@ -193,6 +195,8 @@ def replay(
             bar.update(1)
     if bar is not None:
         bar.close()
+    if not slam_poses:  # nothing to measure: the cause is the error itself
+        raise ValueError(f"{path}: {error}")
     slam_arr = np.array(slam_poses).reshape(-1, 3)
     true = log.poses[: slam_arr.shape[0]]
     odo = integrate_increments(log.poses[0], increments)[: slam_arr.shape[0]]

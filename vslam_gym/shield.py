@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam_gym.config_utils import dataclass_from_dict
+from vslam_gym.config_utils import check_field_types, dataclass_from_dict
 
 __all__ = ["ShieldConfig", "SpeedShield", "corridor_free_length"]
 
@@ -72,6 +72,7 @@ class ShieldConfig:
     no_return: float = 0.999
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         for name in ("margin", "stop_distance", "no_return"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):

@@ -38,6 +38,7 @@ from typing import IO
 
 import numpy as np
 
+from vslam_gym.config_utils import check_field_types
 from vslam_gym.slam.geometry import wrap_angle
 from vslam_gym.slam.motion import compose, increments_between, inverse, predict_pose
 
@@ -115,6 +116,7 @@ class CarmenConfig:
     bearing_offset_deg: float = 0.0
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if not (math.isfinite(self.no_return_fraction) and 0 < self.no_return_fraction <= 1):
             raise ValueError(
                 "CarmenConfig.no_return_fraction must be in (0, 1], "

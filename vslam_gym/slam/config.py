@@ -15,7 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from vslam_gym.config_utils import check_integers, check_intervals, dataclass_from_dict
+from vslam_gym.config_utils import (
+    check_field_types,
+    check_integers,
+    check_intervals,
+    dataclass_from_dict,
+)
 
 LINEARIZATIONS = ("ut", "jacobian")
 PREALIGN_MODES = ("none", "odometry", "fuse")
@@ -52,11 +57,23 @@ class SensorConfig:
     lidar_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         for name in ("fov_deg", "resolution_deg", "max_range", "sigma_range", "sigma_bearing_deg"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"SensorConfig.{name} must be finite and > 0, got {value!r}")
-        if len(self.lidar_offset) != 3 or not np.isfinite(self.lidar_offset).all():
+        if self.fov_deg > 360.0:
+            raise ValueError(f"SensorConfig.fov_deg must be at most 360, got {self.fov_deg!r}")
+        if self.resolution_deg > self.fov_deg:
+            raise ValueError(
+                f"SensorConfig.resolution_deg must be at most fov_deg ({self.fov_deg!r}), "
+                f"got {self.resolution_deg!r}"
+            )
+        try:
+            offset = np.asarray(self.lidar_offset, dtype=float)
+        except (TypeError, ValueError):
+            offset = np.zeros(0)
+        if offset.shape != (3,) or not np.isfinite(offset).all():
             raise ValueError(
                 f"SensorConfig.lidar_offset must be 3 finite numbers, got {self.lidar_offset!r}"
             )
@@ -212,6 +229,7 @@ class ModelConfig:
     continuation_beams: int = 1
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if self.linearization not in LINEARIZATIONS:
             raise ValueError(
                 f"ModelConfig.linearization must be one of {LINEARIZATIONS}, "
@@ -1085,8 +1103,16 @@ class FilterConfig:
     loop_min_points: int = 10
 
     def __post_init__(self) -> None:
-        for name in ("icp_gate_sigma_floor", "loop_sigma_floor", "icp_prior_sigma_floor"):
+        check_field_types(self)
+        for name in (
+            "icp_gate_sigma_floor",
+            "loop_sigma_floor",
+            "icp_prior_sigma_floor",
+            "odometry_sigma_floor",
+            "initial_pose_sigma",
+        ):
             self._sigma_triple(name)
+        self._sigma_triple("odometry_alphas", 4)
         for name in ("prune_merge", "loop_closure", "error_creation_pose_update"):
             value = getattr(self, name)
             if not isinstance(value, bool):
@@ -1183,12 +1209,17 @@ class FilterConfig:
                 f"FilterConfig.prealign must be one of {PREALIGN_MODES}, got {self.prealign!r}"
             )
 
-    def _sigma_triple(self, name: str) -> None:
-        """Check 3 finite standard deviations >= 0 and store them as a tuple (hashable)."""
+    def _sigma_triple(self, name: str, size: int = 3) -> None:
+        """Check ``size`` finite numbers >= 0 and store them as a tuple (hashable)."""
         value = getattr(self, name)
-        floor = np.asarray(value, dtype=float)
-        if floor.shape != (3,) or not np.isfinite(floor).all() or np.any(floor < 0):
-            raise ValueError(f"FilterConfig.{name} must be 3 finite numbers >= 0, got {value!r}")
+        try:
+            floor = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            floor = np.zeros(0)
+        if floor.shape != (size,) or not np.isfinite(floor).all() or np.any(floor < 0):
+            raise ValueError(
+                f"FilterConfig.{name} must be {size} finite numbers >= 0, got {value!r}"
+            )
         # A frozen config stays hashable when built from JSON lists.
         object.__setattr__(self, name, tuple(float(v) for v in floor))
 

@@ -417,11 +417,19 @@ class SlamConfig:
         Unknown keys at any level raise ``UnknownKeyError`` with a suggestion.
         """
         parts_names = ("model", "filter", "icp", "matcher")
+        if not isinstance(data, Mapping):
+            raise ValueError(f"SlamConfig: a mapping of sections is needed, got {data!r}")
         check_keys(data.keys(), ["preset", *parts_names], "SlamConfig")
+        if not isinstance(data.get("preset", "default"), str):
+            raise ValueError(f"SlamConfig.preset must be a name, got {data['preset']!r}")
         base = cls.preset(data.get("preset", "default"))
         parts = {}
         for name in parts_names:
             overrides = data.get(name, {})
+            if not isinstance(overrides, Mapping):
+                raise ValueError(
+                    f"SlamConfig.{name} must be a mapping of its fields, got {overrides!r}"
+                )
             current = getattr(base, name)
             names = [f for f in current.__dataclass_fields__]
             check_keys(overrides.keys(), names, f"SlamConfig.{name}")
@@ -716,6 +724,13 @@ class VertexSLAM:
         initial_pose: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
         blas_threads: int | None = 1,
     ) -> None:
+        if not isinstance(sensor, SensorConfig | None):
+            raise TypeError(f"sensor must be a SensorConfig, got {sensor!r}")
+        if not isinstance(config, SlamConfig | None):
+            raise TypeError(
+                "config must be a SlamConfig (SlamConfig.preset(name), "
+                f"SlamConfig.from_dict(mapping)), got {config!r}"
+            )
         self.sensor = sensor or SensorConfig()
         self.config = config or SlamConfig()
         self.blas_threads = check_blas_threads(blas_threads)
@@ -856,10 +871,11 @@ class VertexSLAM:
             The belief after the step.
 
         Raises:
-            ValueError: malformed odometry or scan (``ScanError``); the belief is left
-                unchanged.
+            ValueError: malformed odometry (not 3 finite numbers, a rotation beyond a
+                full turn, a translation beyond the lidar's ``max_range``) or scan
+                (``ScanError``); the belief is left unchanged.
         """
-        u = check_increments(odometry)
+        u = check_increments(odometry, self.sensor.max_range)
         scan = Scan.from_arrays(ranges, bearings, self.sensor)
         start = time.perf_counter()
         with blas_limit(self.blas_threads):

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vslam_gym.config_utils import check_integers
+from vslam_gym.config_utils import check_field_types, check_integers
 from vslam_gym.slam.geometry import check_pose, stack_last, wrap_angle
 from vslam_gym.slam.landmark import LandmarkModel
 
@@ -138,6 +138,7 @@ class IcpConfig:
     max_correspondence_distance: float = math.inf
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_integers(self, {"max_iterations": 1, "min_points": 2, "cycle_returns": 0})
         for name in ("tol_translation", "tol_rotation"):
             value = getattr(self, name)

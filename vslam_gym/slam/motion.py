@@ -14,16 +14,38 @@ import numpy as np
 
 from vslam_gym.slam.geometry import wrap_angle
 
+MAX_INCREMENT_ROTATION = 2.0 * np.pi
+"""Largest ``|rot1|``, ``|rot2|`` [rad] of one step's odometry (:func:`check_increments`)."""
 
-def check_increments(u: np.ndarray) -> np.ndarray:
-    """``u`` as a finite ``(3,)`` float array, or a ``ValueError`` naming the problem."""
-    arr = np.asarray(u, dtype=float)
+
+def check_increments(u: np.ndarray, max_translation: float = np.inf) -> np.ndarray:
+    """``u`` as a finite ``(3,)`` float array, or a ``ValueError`` naming the problem.
+
+    Besides shape and finiteness, a rotation beyond a full turn
+    (:data:`MAX_INCREMENT_ROTATION`) or a translation beyond ``max_translation`` [m] (the
+    filter passes its lidar's range: no scan can follow such a jump) is refused: such
+    increments come from wrong units or a corrupt log, and their noise would overflow
+    the covariance.
+    """
+    try:
+        arr = np.asarray(u, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"odometry increments must be 3 numbers, got {u!r}") from exc
     if arr.shape != (3,):
         raise ValueError(
             f"odometry increments must have shape (3,) [rot1, trans, rot2], got {arr.shape}"
         )
     if not np.isfinite(arr).all():
         raise ValueError(f"odometry increments must be finite, got {arr}")
+    if max(abs(arr[0]), abs(arr[2])) > MAX_INCREMENT_ROTATION:
+        raise ValueError(
+            f"odometry rotations rot1, rot2 must be at most 2 pi in magnitude, got {arr}"
+        )
+    if abs(arr[1]) > max_translation:
+        raise ValueError(
+            f"odometry translation must be at most {max_translation} m (the lidar's range) "
+            f"in one step, got {arr[1]}"
+        )
     return arr
 
 

@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vslam_gym.config_utils import check_integers, dataclass_from_dict
+from vslam_gym.config_utils import check_field_types, check_integers, dataclass_from_dict
 from vslam_gym.slam.geometry import check_pose, polar_to_cartesian, stack_last, wrap_angle
 
 __all__ = [
@@ -248,6 +248,7 @@ class ScanMatcherConfig:
     sigma_floor: tuple[float, float, float] = (0.01, 0.01, 0.002)
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_integers(
             self,
             {
