@@ -34,11 +34,11 @@ def record(world: str, seed: int) -> list[tuple]:
     calls: list[tuple] = []
     original = slam_filter.align_many
 
-    def recording(points, models, pose, config, max_range, half_fov, *, lines=None, bounds=None):
-        calls.append((points, models, np.array(pose), config, max_range, half_fov, bounds))
-        return original(
-            points, models, pose, config, max_range, half_fov, lines=lines, bounds=bounds
-        )
+    def recording(points, models, pose, config, max_range, half_fov, *, bounds=None, **kwargs):
+        # kwargs: the filter's other keywords (its cached line geometry, an ICP pose prior)
+        prior = kwargs.get("prior_weight")
+        calls.append((points, models, np.array(pose), config, max_range, half_fov, bounds, prior))
+        return original(points, models, pose, config, max_range, half_fov, bounds=bounds, **kwargs)
 
     slam_filter.align_many = recording
     try:
@@ -49,9 +49,10 @@ def record(world: str, seed: int) -> list[tuple]:
 
 
 def one_at_a_time(call, lines, scale: float = 1.0) -> list[icp.IcpResult]:
-    points, models, pose, config, max_range, half_fov, bounds = call
+    points, models, pose, config, max_range, half_fov, bounds, prior = call
     sets = points if isinstance(points, list) else [points] * len(models)
     bounds = bounds or [None] * len(models)
+    prior = icp._prior_weight(prior)
     return [
         icp._align(
             np.asarray(q, dtype=float) * scale,
@@ -62,15 +63,24 @@ def one_at_a_time(call, lines, scale: float = 1.0) -> list[icp.IcpResult]:
             max_range,
             half_fov,
             b,
+            prior=prior,
         )
         for q, m, g, b in zip(sets, models, lines, bounds, strict=True)
     ]
 
 
 def side_by_side(call, lines) -> list[icp.IcpResult]:
-    points, models, pose, config, max_range, half_fov, bounds = call
+    points, models, pose, config, max_range, half_fov, bounds, prior = call
     return icp.align_many(
-        points, models, pose, config, max_range, half_fov, lines=lines, bounds=bounds
+        points,
+        models,
+        pose,
+        config,
+        max_range,
+        half_fov,
+        lines=lines,
+        bounds=bounds,
+        prior_weight=prior,
     )
 
 

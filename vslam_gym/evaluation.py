@@ -1698,9 +1698,10 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     )
     parser.add_argument(
         "--preset",
-        choices=("default", "thesis", "fast"),
+        choices=("default", "thesis", "fast", "logs"),
         default="default",
-        help="estimator configuration (default %(default)s)",
+        help="estimator configuration (default %(default)s; 'logs' is the one measured on "
+        "the real lidar logs)",
     )
     add_overrides_argument(parser, '{"filter": {"measurement_min_travel": 0.1}}')
     parser.add_argument("--out", required=True, help="output directory")

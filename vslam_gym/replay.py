@@ -320,7 +320,7 @@ def add_replay_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--preset",
-        choices=("default", "thesis", "logs"),
+        choices=("default", "thesis", "logs", "fast"),
         default="default",
         help="configuration preset (default %(default)s); 'logs' is the one measured on "
         "real lidar logs: whole-scan prealignment, loop closure, README 'Replaying a "
@@ -423,13 +423,18 @@ def _summary_line(metrics: Mapping[str, Any]) -> str:
     def shown(k: str, v: Any) -> str:
         if k == "step_ms_parts":  # the means [ms]
             return "step_ms_mean " + " / ".join(f"{p} {s['mean']:.1f}" for p, s in v.items())
+        if k == "range_perturbation":  # 1e-15 and the like: no fixed decimals
+            return f"{k} {v:g}"
         return f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
 
-    return ", ".join(
-        shown(k, v)
-        for k, v in metrics.items()
-        if (k != "overrides" or v) and k != "sensor"  # overrides only when there are any
-    )
+    def kept(k: str, v: Any) -> bool:
+        if k == "overrides":  # only when there are any
+            return bool(v)
+        if k == "seed":  # the synthetic odometry's; the logged odometry has none
+            return metrics.get("odometry") != "logged"
+        return k != "sensor"
+
+    return ", ".join(shown(k, v) for k, v in metrics.items() if kept(k, v))
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
