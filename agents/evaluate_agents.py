@@ -472,6 +472,15 @@ def evaluate_agent(
         wrapper["observation"] = {"frontier_count": cue}
     spec = vslam_gym.explore_spec(env_id, **wrapper) if wrapper else env_id
     env = gym.make(spec, **kwargs)
+    wrapped = env
+    while isinstance(wrapped, gym.Wrapper) and not isinstance(wrapped, vslam_gym.SlamWrapper):
+        wrapped = wrapped.env
+    if not isinstance(wrapped, vslam_gym.SlamWrapper):
+        env.close()
+        raise ValueError(
+            f"{env_id} has no SLAM wrapper: evaluate on an exploration id "
+            f"({', '.join(i for i in gym.registry if i.startswith('VSlam/Explore'))})"
+        ) from None
     horizon = env.spec.max_episode_steps if env.spec is not None else None
     horizon = max_steps or horizon
     bar = progress_bar(episodes * horizon if horizon else None, "evaluate", progress, leave=True)
@@ -550,7 +559,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--video", action="store_true", help="GIF of the first episode")
     parser.add_argument("--max-steps", type=int, default=None, help="episode length")
     parser.add_argument(
-        "--reward", default=None, help="reward preset (default: the registration's)"
+        "--reward",
+        default=None,
+        type=name_or_mapping,
+        help="reward preset (default|d_opt|coverage) or JSON weights, e.g. "
+        "'{\"collision\": 10}' (default: the registration's)",
     )
     parser.add_argument(
         "--shield",
@@ -581,9 +594,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def training_differences(agent: str, args: argparse.Namespace) -> list[str]:
+    """The training options of a saved model that this evaluation's options leave out.
+
+    Reads ``train_config.json`` beside the model (written by ``agents/train_ppo.py``):
+    its shield, SLAM preset and reward, when this evaluation runs without them (an
+    evaluation uses the registration's unless told). Empty for a scripted agent or
+    a model without that file.
+    """
+    path = Path(agent).parent / "train_config.json"
+    if agent in SCRIPTED_AGENTS or not path.is_file():
+        return []
+    trained = json.loads(path.read_text())
+    missing = []
+    if trained.get("shield") and not args.shield:
+        missing.append("--shield")
+    preset = trained.get("slam_preset")
+    if preset not in (None, "default") and args.slam_config is None:
+        missing.append(f"--slam-config {preset}")
+    reward = trained.get("reward")
+    if reward not in (None, "default") and args.reward is None:
+        missing.append(f"--reward '{json.dumps(reward)}'")
+    return missing
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the evaluation, write the files, print the table."""
     args = build_parser().parse_args(argv)
+    missing = training_differences(args.agent, args)
+    if missing:
+        print(
+            f"note: {args.agent} was trained with {' '.join(missing)} "
+            "(its train_config.json); this evaluation runs without: pass them to evaluate "
+            "it as trained",
+            file=sys.stderr,
+        )
     try:
         result = evaluate_agent(
             args.agent,

@@ -251,6 +251,8 @@ def train(
             seed=seed,
         )
         model.save(out / "bc_model.zip")
+        if progress_bar:
+            print(f"behaviour cloning of {imitate} done: {out / 'bc_model.zip'}; PPO follows")
     callbacks: list[BaseCallback] = []
     if max_minutes is not None:
         callbacks.append(WallClockLimit(max_minutes * 60.0 - (time.perf_counter() - start)))
@@ -284,6 +286,7 @@ def train(
     model.save(path)
     (out / "train_config.json").write_text(json.dumps(config, indent=2))
     vec_env.close()
+    model.logger.close()  # its progress.csv (or TensorBoard files)
     return path
 
 

@@ -16,10 +16,12 @@ import vslam_gym
 from agents.evaluate_agents import (
     TIMING_KEYS,
     PolicyAgent,
+    build_parser,
     evaluate_agent,
     main,
     resolve_agent,
     run_agent_episode,
+    training_differences,
 )
 from agents.scripted import (
     SCRIPTED_AGENTS,
@@ -344,3 +346,28 @@ def test_carmen_logs_replay_the_closed_loop_run(tmp_path: Path) -> None:
     assert 0.0 < metrics["nees_mean"] < 100.0 and 0.0 <= metrics["nees_in_band_fraction"] <= 1.0
     with pytest.raises(ValueError, match="carmen_logs=True needs an out_dir"):
         evaluate_agent("random", vslam_gym.EXPLORE_ID, episodes=1, carmen_logs=True)
+
+
+def test_evaluating_a_model_names_the_training_options_it_leaves_out(tmp_path):
+    model = tmp_path / "final_model.zip"
+    model.write_bytes(b"")
+    trained = {"shield": True, "slam_preset": "fast", "reward": {"collision": 10}}
+    (tmp_path / "train_config.json").write_text(json.dumps(trained))
+    bare = build_parser().parse_args(["--agent", str(model), "--out", str(tmp_path / "o")])
+    assert training_differences(str(model), bare) == [
+        "--shield",
+        "--slam-config fast",
+        "--reward '{\"collision\": 10}'",
+    ]
+    same = build_parser().parse_args(
+        ["--agent", str(model), "--out", "o", "--shield", "--slam-config", "fast"]
+        + ["--reward", '{"collision": 10}']
+    )
+    assert same.reward == {"collision": 10}  # JSON weights, as train_ppo.py takes them
+    assert training_differences(str(model), same) == []
+    assert training_differences("frontier", bare) == []  # scripted agents: nothing to read
+
+
+def test_an_env_without_the_slam_wrapper_is_named(tmp_path):
+    with pytest.raises(ValueError, match="VSlam/LidarWorld-v0 has no SLAM wrapper"):
+        evaluate_agent("random", env_id="VSlam/LidarWorld-v0", episodes=1, out_dir=tmp_path)
