@@ -140,3 +140,15 @@ def test_compare_command_on_two_evaluations(tmp_path, capsys):
 
     assert main(["compare", str(tmp_path / "a"), str(tmp_path / "missing")]) == 2
     assert "no such file or directory" in capsys.readouterr().err
+
+
+def test_a_single_replay_pairs_with_its_seed_of_a_multi_seed_one():
+    single = {"run": {"seed": 1, "ate_rmse_m": 0.5}}
+    several = {"seed 0": {"seed": 0, "ate_rmse_m": 0.4}, "seed 1": {"seed": 1, "ate_rmse_m": 0.7}}
+    (row,) = compare_runs(single, several, ["ate_rmse_m"])
+    assert row.pairs == 1 and row.difference == pytest.approx(0.2)
+    (row,) = compare_runs(several, single, ["ate_rmse_m"])
+    assert row.pairs == 1 and row.difference == pytest.approx(-0.2)
+    # two single runs still pair as "run", whatever their seeds
+    (row,) = compare_runs(single, {"run": {"seed": 4, "ate_rmse_m": 0.6}}, ["ate_rmse_m"])
+    assert row.pairs == 1

@@ -709,3 +709,12 @@ def test_name_or_mapping_parses_json_objects_and_keeps_names():
     }
     with pytest.raises(argparse.ArgumentTypeError, match="valid JSON"):
         name_or_mapping('{"filter": ')
+
+
+def test_evaluate_keeps_odometry_alphas_set_in_the_overrides():
+    mine = [0.1, 0.05, 0.05, 0.01]
+    common = dict(world="single_landmark", seed=0, preset="default", max_steps=3)
+    result = run_episode(**common, overrides={"filter": {"odometry_alphas": mine}})
+    assert result.config.filter.odometry_alphas == tuple(mine)
+    world = run_episode(**common)
+    assert world.config.filter.odometry_alphas != tuple(mine)

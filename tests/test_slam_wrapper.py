@@ -490,3 +490,23 @@ def test_reward_config_validation():
         BeliefRewardConfig(new_boundary=float("nan"))
     assert BeliefRewardConfig.preset("d_opt").collision == 100.0
     assert d_optimality(np.diag([1.0, 4.0, 16.0])) == pytest.approx(4.0)
+
+
+def test_odometry_alphas_come_from_the_world_unless_the_config_sets_them():
+    world_alphas = tuple(load_world("small").odometry.alphas)
+    env = SlamWrapper(LidarWorldEnv(world="small"), slam_config={"filter": {"min_set_beams": 6}})
+    env.reset(seed=0)
+    assert env.slam.config.filter.odometry_alphas == world_alphas
+    mine = (0.1, 0.05, 0.05, 0.01)  # a deliberately wrong noise model is kept
+    env = SlamWrapper(
+        LidarWorldEnv(world="small"), slam_config={"filter": {"odometry_alphas": mine}}
+    )
+    env.reset(seed=0)
+    assert env.slam.config.filter.odometry_alphas == mine != world_alphas
+
+
+def test_a_noise_free_lidar_is_named_for_the_filter():
+    """The simulator takes sigma_range 0; the filter needs noise and says where to set it."""
+    env = LidarWorldEnv(world="small", lidar={"sigma_range": 0.0})
+    with pytest.raises(ValueError, match=r"\[lidar\] of the world file.*sigma_range"):
+        SlamWrapper(env)

@@ -121,7 +121,9 @@ def load_runs(path: str | Path) -> dict[str, dict[str, Any]]:
 
     Args:
         path: a ``metrics.json`` (its ``per_seed`` or ``per_episode`` runs keyed ``seed
-            S``; a file without them is one run, keyed ``run``), a directory holding one, or a
+            S``; a file without them is one run, keyed ``run``, which
+            :func:`compare_runs` pairs by its ``seed`` with a multi-seed output), a
+            directory holding one, or a
             directory whose subdirectories hold them (searched down to the first
             ``metrics.json`` of each branch; runs keyed by their directory relative to
             ``path``, plus ``/seed S`` for a file of several seeds).
@@ -161,6 +163,19 @@ def _paired_t(diff: np.ndarray) -> float:
     return mean / (spread / math.sqrt(diff.size))
 
 
+def _seeded(
+    runs: Mapping[str, Mapping[str, Any]], against: Mapping[str, Mapping[str, Any]]
+) -> Mapping[str, Mapping[str, Any]]:
+    """A lone run (key ``run``) keyed by its seed when ``against`` is keyed by seeds.
+
+    A single replay (``--seed 3``) then pairs with that seed of a multi-seed one.
+    """
+    lone = runs.get("run")
+    if len(runs) != 1 or lone is None or "run" in against or not _numeric(lone.get("seed")):
+        return runs
+    return {f"seed {lone['seed']}": lone}
+
+
 def compare_runs(
     base: Mapping[str, Mapping[str, Any]],
     other: Mapping[str, Mapping[str, Any]],
@@ -178,6 +193,7 @@ def compare_runs(
         ValueError: no run in common, a named metric that is not numeric in some paired
             run of either, or nothing to compare.
     """
+    base, other = _seeded(base, other), _seeded(other, base)
     keys = [k for k in base if k in other]
     if not keys:
         raise ValueError(

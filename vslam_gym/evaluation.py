@@ -29,6 +29,7 @@ from x); metres, radians, seconds; step times in milliseconds.
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import json
 import math
@@ -257,14 +258,38 @@ class EpisodeLog:
 
 
 def sensor_from_lidar(lidar: Any) -> SensorConfig:
-    """The estimator's :class:`SensorConfig` of a simulated ``LidarSpec`` (no offset)."""
-    return SensorConfig(
-        fov_deg=lidar.fov_deg,
-        resolution_deg=lidar.resolution_deg,
-        max_range=lidar.max_range,
-        sigma_range=lidar.sigma_range,
-        sigma_bearing_deg=lidar.sigma_bearing_deg,
-    )
+    """The estimator's :class:`SensorConfig` of a simulated ``LidarSpec`` (no offset).
+
+    Raises:
+        ValueError: the lidar cannot be filtered, e.g. a noise-free lidar (``[lidar]
+            sigma_range = 0`` in a world file: the simulator takes it, the filter's
+            likelihoods need noise); the message names the lidar setting.
+    """
+    try:
+        return SensorConfig(
+            fov_deg=lidar.fov_deg,
+            resolution_deg=lidar.resolution_deg,
+            max_range=lidar.max_range,
+            sigma_range=lidar.sigma_range,
+            sigma_bearing_deg=lidar.sigma_bearing_deg,
+        )
+    except ValueError as exc:
+        raise ValueError(
+            f"the world's lidar cannot be given to the SLAM filter ([lidar] of the world "
+            f"file or the env's lidar overrides): {exc}"
+        ) from exc
+
+
+def sets_odometry_alphas(overrides: Any) -> bool:
+    """Whether a ``SlamConfig.from_dict`` mapping sets ``filter.odometry_alphas`` itself.
+
+    Callers that give the filter the world's odometry noise keep such a choice (a
+    deliberately wrong noise model, say) instead of overwriting it.
+    """
+    if not isinstance(overrides, Mapping):
+        return False
+    section = overrides.get("filter")
+    return isinstance(section, Mapping) and "odometry_alphas" in section
 
 
 def slam_config(preset: str | SlamConfig, odometry_alphas: Sequence[float]) -> SlamConfig:
@@ -383,7 +408,10 @@ def run_episode(
     if env.world is None or env.world.route is None:
         raise ValueError(f"world {world!r} has no [route] to drive")
     base = SlamConfig.from_dict({"preset": preset, **overrides}) if overrides else preset
-    config = slam_config(base, env.world.odometry.alphas)
+    if sets_odometry_alphas(overrides):  # the caller's noise model, not the world's
+        config = base
+    else:
+        config = slam_config(base, env.world.odometry.alphas)
     sensor = sensor_from_lidar(env.lidar_spec)
     period = env.physics_config.control_period
     pieces = surface_pieces(env.world)  # cached per world; not part of the episode's time
@@ -1582,7 +1610,7 @@ def parse_seeds(text: str) -> list[int]:
             ) from err
     if any(s < 0 for s in seeds):
         raise SeedsError(f"seeds must be >= 0, got {text!r}")
-    duplicates = sorted({s for s in seeds if seeds.count(s) > 1})
+    duplicates = sorted(s for s, n in collections.Counter(seeds).items() if n > 1)
     if duplicates:
         raise SeedsError(f"seeds listed twice in {text!r}: {duplicates}")
     return seeds

@@ -23,7 +23,13 @@ from vslam_gym.belief_observation import (
 from vslam_gym.belief_reward import BeliefReward, BeliefRewardConfig
 from vslam_gym.config_utils import dataclass_from_dict
 from vslam_gym.env import LidarWorldEnv
-from vslam_gym.evaluation import check_start_scan, sensor_from_lidar, slam_config, use_start_scan
+from vslam_gym.evaluation import (
+    check_start_scan,
+    sensor_from_lidar,
+    sets_odometry_alphas,
+    slam_config,
+    use_start_scan,
+)
 from vslam_gym.shield import ShieldConfig, SpeedShield
 from vslam_gym.slam.filter import Belief, SlamConfig, VertexSLAM
 
@@ -137,7 +143,8 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     |---------------|-------------|------------------------------------------------------|
     | `env`         |             | a ``LidarWorldEnv``, possibly wrapped                 |
     | `slam_config` | `"default"` | preset name, ``SlamConfig.from_dict`` mapping or      |
-    |               |             | ``SlamConfig``; odometry alphas come from the world;  |
+    |               |             | ``SlamConfig``; odometry alphas come from the world   |
+    |               |             | unless a mapping sets ``filter.odometry_alphas``;     |
     |               |             | ``"fast"`` trades accuracy for 2-3x the throughput    |
     | `reward`      | `"default"` | preset name, mapping of weights or config             |
     | `observation` | `None`      | mapping of ``BeliefObservationConfig`` fields         |
@@ -190,6 +197,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._base: LidarWorldEnv = base
         self.start_scan = check_start_scan(start_scan)
         self._slam_base = _slam_config(slam_config)
+        self._own_alphas = sets_odometry_alphas(slam_config)  # else the world's
         self.reward_config = BeliefRewardConfig.from_any(reward)
         if observation is None:
             observation = BeliefObservationConfig()
@@ -247,7 +255,7 @@ class SlamWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options)
         base = self._base
         alphas = base._odometry_alphas or tuple(base.world.odometry.alphas)
-        config = slam_config(self._slam_base, alphas)
+        config = self._slam_base if self._own_alphas else slam_config(self._slam_base, alphas)
         self._slam = VertexSLAM(self.sensor, config, initial_pose=base.world.robot.start)
         self._belief = use_start_scan(self._slam, self.start_scan, obs["scan"], info["bearings"])
         self._steps_since_association = 0
