@@ -260,6 +260,8 @@ def test_scan_consumes_a_fixed_amount_of_randomness():
         {"sigma_range": -0.1},
         {"fov_deg": 0.0},
         {"resolution_deg": float("nan")},
+        {"resolution_deg": 0.7},  # 180 / 0.7 beam steps: not a whole number
+        {"resolution_deg": 1e-7},  # 1.8e9 beams: a units mistake, not a lidar
     ],
 )
 def test_bad_lidar_settings_raise(bad):

@@ -25,6 +25,7 @@ import numpy as np
 
 from vslam_gym.config_utils import UnknownKeyError, check_keys
 from vslam_gym.sim import shapes
+from vslam_gym.sim.lidar import BEAM_COUNT_TOL, MAX_BEAMS
 from vslam_gym.sim.world import (
     CircleObstacle,
     LidarSpec,
@@ -71,7 +72,6 @@ _OBSTACLE_KEYS = {
 _MIN_POINTS = {"polygon": 3, "wall": 2}
 _FULL_CIRCLE_DEG = 360.0
 _N_ALPHAS = 4
-_BEAM_COUNT_TOL = 1e-6  # fov_deg / resolution_deg must be this close to a whole number
 
 
 class WorldFormatError(ValueError):
@@ -226,12 +226,14 @@ def _parse_lidar(p: _Parser, raw: object) -> LidarSpec:
     if spec.fov_deg > _FULL_CIRCLE_DEG:
         p.fail("lidar.fov_deg", f"must be <= {_FULL_CIRCLE_DEG:g}, got {spec.fov_deg!r}")
     steps = spec.fov_deg / spec.resolution_deg
-    if spec.resolution_deg > spec.fov_deg or abs(steps - round(steps)) > _BEAM_COUNT_TOL:
+    if spec.resolution_deg > spec.fov_deg or abs(steps - round(steps)) > BEAM_COUNT_TOL:
         p.fail(
             "lidar.resolution_deg",
             f"must divide fov_deg ({spec.fov_deg:g}) into a whole number of steps, "
             f"got {spec.resolution_deg!r}",
         )
+    if round(steps) + 1 > MAX_BEAMS:
+        p.fail("lidar.resolution_deg", f"gives {round(steps) + 1} beams, more than {MAX_BEAMS}")
     return spec
 
 

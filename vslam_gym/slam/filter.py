@@ -873,7 +873,11 @@ class VertexSLAM:
         Raises:
             ValueError: malformed odometry (not 3 finite numbers, a rotation beyond a
                 full turn, a translation beyond the lidar's ``max_range``) or scan
-                (``ScanError``); the belief is left unchanged.
+                (``ScanError``); the belief is left unchanged. The configuration is
+                checked when it is built, so these are the step's only input errors. A
+                failure inside an accepted step (a numerical one; none is known on the
+                worlds or logs) leaves the filter's state undefined: :meth:`reset` it.
+                (Keeping a copy to roll back costs about 10 ms per ``house`` step.)
         """
         u = check_increments(odometry, self.sensor.max_range)
         scan = Scan.from_arrays(ranges, bearings, self.sensor)
