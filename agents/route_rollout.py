@@ -44,7 +44,8 @@ def main() -> None:
     args = parser.parse_args()
     for seed in range(args.episodes):
         result = rollout(args.world, seed, args.max_steps)
-        print(f"seed {seed}: " + ", ".join(f"{k} {v:.1f}" for k, v in result.items()))
+        shown = (f"{k} {v}" if isinstance(v, int) else f"{k} {v:.1f}" for k, v in result.items())
+        print(f"seed {seed}: " + ", ".join(shown))
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Per-step time of the SLAM filter along a world's route, for both presets.
+"""Per-step time of the SLAM filter along a world's route, for each preset asked for.
 
 For each world and preset: an episode (``vslam_gym.evaluation.run_episode``) drives the
 world's route with the route follower on the true pose and runs ``VertexSLAM`` every

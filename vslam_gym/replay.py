@@ -276,6 +276,8 @@ def plot_replay(result: dict[str, Any], out: Path) -> None:
     ax.plot(*result["odometry"][:, :2].T, "--", color="tab:orange", label="odometry")
     ax.plot(*result["slam"][:, :2].T, "-", color="tab:blue", label="SLAM")
     ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
     ax.legend(loc="best", fontsize="small")
     ax.set_title(f"{Path(str(result['metrics']['log'])).name}: trajectories")
     fig.savefig(out / "trajectories.png", dpi=120)
@@ -294,6 +296,8 @@ def plot_replay(result: dict[str, Any], out: Path) -> None:
             color="0.6",
         )
     plot_models([lm.model for lm in result["belief"].landmarks], ax=ax)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
     ax.set_title("landmark map over the scans at the corrected poses")
     fig.savefig(out / "map.png", dpi=120)
     plt.close(fig)
