@@ -254,3 +254,18 @@ def test_random_worlds_follow_the_seed():
     assert env.world == first
     assert second != first
     assert env.observation_space["scan"].shape == (181,)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"collision_penalty": "1"}, "collision_penalty must be a number"),
+        ({"control_period": None}, "control_period must be a number"),
+        ({"physics_substeps": 2.7}, "physics_substeps must be an integer"),  # was truncated
+        ({"terminate_on_collision": "no"}, "terminate_on_collision must be a bool"),  # was True
+        ({"odometry_alphas": 0.1}, "odometry_alphas must be 4 numbers"),
+    ],
+)
+def test_constructor_arguments_of_the_wrong_type_are_named(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        LidarWorldEnv(world="small", **kwargs)

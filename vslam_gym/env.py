@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping
+import numbers
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -203,8 +204,20 @@ class LidarWorldEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
                 f"got {render_mode!r}"
             )
+        for name, value in (
+            ("collision_penalty", collision_penalty),
+            ("control_period", control_period),
+        ):
+            if not isinstance(value, numbers.Real) or isinstance(value, bool):
+                raise ValueError(f"{name} must be a number, got {value!r}")
         if not (math.isfinite(collision_penalty) and collision_penalty >= 0.0):
             raise ValueError(f"collision_penalty must be finite and >= 0, got {collision_penalty}")
+        if not isinstance(physics_substeps, numbers.Integral) or isinstance(physics_substeps, bool):
+            raise ValueError(f"physics_substeps must be an integer, got {physics_substeps!r}")
+        if not isinstance(terminate_on_collision, bool | np.bool_):
+            raise ValueError(
+                f"terminate_on_collision must be a bool, got {terminate_on_collision!r}"
+            )
         self.render_mode = render_mode
         self.world_name = str(world)
         self.collision_penalty = float(collision_penalty)
@@ -229,6 +242,8 @@ class LidarWorldEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             loaded = load_world(world)
             self.lidar_spec = check_lidar_spec(dataclasses.replace(loaded.lidar, **lidar_overrides))
             self._fixed_world = dataclasses.replace(loaded, lidar=self.lidar_spec)
+        if odometry_alphas is not None and not isinstance(odometry_alphas, Sequence | np.ndarray):
+            raise ValueError(f"odometry_alphas must be 4 numbers, got {odometry_alphas!r}")
         self._odometry_alphas = None if odometry_alphas is None else tuple(odometry_alphas)
         if self._odometry_alphas is not None:
             OdometryModel(alphas=self._odometry_alphas)  # validates
