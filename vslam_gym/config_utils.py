@@ -101,6 +101,11 @@ def _field_kinds(cls: type) -> tuple[tuple[str, str], ...]:
     return tuple(kinds)
 
 
+_PLAIN = {"bool": (bool,), "int": (int,), "float": (float, int), "str": (str,)}
+_PLAIN_OK = {**_PLAIN, **{k + "?": (*v, type(None)) for k, v in _PLAIN.items()}}
+"""Exact types each field kind of :func:`check_field_types` passes at once."""
+
+
 def check_field_types(owner: Any) -> None:
     """Raise :class:`ConfigTypeError` unless each scalar field of ``owner`` has its type.
 
@@ -112,6 +117,9 @@ def check_field_types(owner: Any) -> None:
     """
     for name, kind in _field_kinds(type(owner)):
         value = getattr(owner, name)
+        exact = type(value)
+        if exact in _PLAIN_OK[kind]:  # the common case, without the abstract checks
+            continue
         if kind.endswith("?"):
             if value is None:
                 continue
