@@ -162,14 +162,23 @@ def frontier_cue(agent: Agent) -> int:
     return int(spaces["frontier"].shape[0]) // 4
 
 
-def resolve_agent(agent: str | Path | Agent | Any, seed: int = 0) -> Agent:
+def resolve_agent(
+    agent: str | Path | Agent | Any,
+    seed: int = 0,
+    agent_config: Mapping[str, Any] | None = None,
+) -> Agent:
     """An agent from a scripted name, a saved model path, a model or an agent.
 
+    ``agent_config``: settings of a scripted agent by name (:func:`make_agent`).
+
     Raises:
-        ValueError: for a name that is neither a scripted agent nor an existing file.
+        ValueError: for a name that is neither a scripted agent nor an existing file,
+            or settings for anything but a scripted agent by name.
     """
     if isinstance(agent, str) and agent in SCRIPTED_AGENTS:
-        return make_agent(agent, seed)
+        return make_agent(agent, seed, agent_config)
+    if agent_config:
+        raise ValueError(f"agent settings apply to the scripted agents by name, not {agent!r}")
     if isinstance(agent, str | Path):
         if not Path(agent).is_file():
             raise ValueError(
@@ -411,6 +420,7 @@ def evaluate_agent(
     slam_config: str | Mapping[str, Any] | None = None,
     start_scan: str | None = None,
     carmen_logs: bool = False,
+    agent_config: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Evaluate an agent over ``episodes`` seeded episodes; optionally write the files.
 
@@ -439,6 +449,8 @@ def evaluate_agent(
             (``"matcher"``): ``"map"`` or ``"none"`` (the behaviour before session 33).
         carmen_logs: write every episode as ``out_dir/logs/episode_<seed>.log.gz``
             (:func:`run_agent_episode`'s ``carmen_log``; needs ``out_dir``).
+        agent_config: settings of a scripted agent named by ``agent``, e.g.
+            ``{"reach_distance": 0.5}`` for ``frontier`` (:func:`agents.scripted.make_agent`).
 
     Returns:
         ``{"agent", "env_id", "seed", "episodes", "max_steps", "machine", "per_episode",
@@ -454,7 +466,7 @@ def evaluate_agent(
     if log_dir is not None:
         log_dir.mkdir(parents=True, exist_ok=True)
     cfg = config if config is not None else EvaluationConfig()
-    runner = resolve_agent(agent, seed)
+    runner = resolve_agent(agent, seed, agent_config)
     kwargs = dict(env_kwargs or {})
     if max_steps is not None:
         kwargs["max_episode_steps"] = int(max_steps)
@@ -511,6 +523,7 @@ def evaluate_agent(
     name = agent if isinstance(agent, str | Path) else getattr(runner, "name", type(agent).__name__)
     summary = {
         "agent": str(name),
+        "agent_config": dict(agent_config or {}),
         "env_id": env_id,
         "reward": reward or "registered",
         "shield": bool(shield),
@@ -552,6 +565,14 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help=f"one of {', '.join(SCRIPTED_AGENTS)}, or the path of a saved PPO .zip",
     )
+    parser.add_argument(
+        "--agent-config",
+        default=None,
+        type=json_mapping,
+        help='settings of a scripted agent as JSON, e.g. \'{"reach_distance": 0.5, '
+        '"safety": {"margin": 0.2}}\' for frontier (agents/scripted.py: FrontierConfig, '
+        "WallFollowerConfig, RouteAgentConfig)",
+    )
     parser.add_argument("--env", default=vslam_gym.EXPLORE_ID, help="registered Explore id")
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--seed", type=int, default=1000, help="episode i resets with seed+i")
@@ -592,6 +613,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
+
+
+def json_mapping(text: str) -> dict[str, Any]:
+    """An argparse type: a JSON object (``--agent-config``); anything else is a usage error."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"not valid JSON: {exc}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"a JSON object is needed, got {text!r}")
+    return value
 
 
 def training_differences(agent: str, args: argparse.Namespace) -> list[str]:
@@ -644,6 +676,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             slam_config=args.slam_config,
             start_scan=args.start_scan,
             carmen_logs=args.carmen_logs,
+            agent_config=args.agent_config,
         )
     except (ValueError, gym.error.Error) as err:
         print(f"error: {err}", file=sys.stderr)

@@ -30,6 +30,7 @@ Only the public API: ``gymnasium.make`` with the registered ids, ``env.unwrapped
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -37,10 +38,12 @@ import gymnasium as gym
 import numpy as np
 
 from vslam_gym.belief_observation import belief_segments, frontier_targets
+from vslam_gym.config_utils import check_field_types, nested_dataclass_from_dict
 from vslam_gym.control import RouteFollower, RouteFollowerConfig
 from vslam_gym.shield import corridor_free_length
 
 __all__ = [
+    "AGENT_CONFIGS",
     "SCRIPTED_AGENTS",
     "Agent",
     "FrontierAgent",
@@ -219,6 +222,7 @@ class SafetyConfig:
     turn_lock_steps: int = 45
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         _check_positive(
             self,
             "turn_lock_steps",
@@ -375,6 +379,7 @@ class WallFollowerConfig:
     safety: SafetyConfig = field(default_factory=SafetyConfig)
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if self.side not in ("right", "left"):
             raise ValueError(
                 f"WallFollowerConfig.side must be 'right' or 'left', got {self.side!r}"
@@ -490,6 +495,7 @@ class FrontierConfig:
     safety: SafetyConfig = field(default_factory=SafetyConfig)
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         _check_positive(
             self,
             "reach_distance",
@@ -653,18 +659,35 @@ SCRIPTED_AGENTS = {
 """Scripted agents by command-line name."""
 
 
-def make_agent(name: str, seed: int | None = 0) -> Agent:
+AGENT_CONFIGS = {
+    "route": RouteAgentConfig,
+    "wall": WallFollowerConfig,
+    "frontier": FrontierConfig,
+}
+"""The settings class of each configurable scripted agent."""
+
+
+def make_agent(name: str, seed: int | None = 0, config: Mapping[str, Any] | None = None) -> Agent:
     """A scripted agent by name (``random``, ``route``, ``wall``, ``frontier``).
 
     Args:
         name: the agent's name.
         seed: seed of :class:`RandomAgent` (the others are deterministic).
+        config: fields of the agent's settings (:data:`AGENT_CONFIGS`; nested ones as
+            mappings, e.g. ``{"reach_distance": 0.5, "safety": {"margin": 0.2}}``);
+            None or empty: the defaults.
 
     Raises:
-        ValueError: for an unknown name.
+        ValueError: an unknown name, an unknown or malformed setting, or settings for the
+            random agent (it has none).
     """
     if name not in SCRIPTED_AGENTS:
         raise ValueError(f"unknown agent {name!r}; choose one of {sorted(SCRIPTED_AGENTS)}")
     if name == "random":
+        if config:
+            raise ValueError("the random agent has no settings (only its seed)")
         return RandomAgent(seed)
-    return SCRIPTED_AGENTS[name]()
+    if not config:
+        return SCRIPTED_AGENTS[name]()
+    settings = nested_dataclass_from_dict(AGENT_CONFIGS[name], config, f"{name} agent")
+    return SCRIPTED_AGENTS[name](settings)

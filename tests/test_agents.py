@@ -371,3 +371,18 @@ def test_evaluating_a_model_names_the_training_options_it_leaves_out(tmp_path):
 def test_an_env_without_the_slam_wrapper_is_named(tmp_path):
     with pytest.raises(ValueError, match="VSlam/LidarWorld-v0 has no SLAM wrapper"):
         evaluate_agent("random", env_id="VSlam/LidarWorld-v0", episodes=1, out_dir=tmp_path)
+
+
+def test_scripted_agents_take_their_settings_by_name():
+    agent = make_agent("frontier", config={"reach_distance": 0.5, "safety": {"margin": 0.2}})
+    assert agent.config.reach_distance == 0.5 and agent.config.safety.margin == 0.2
+    assert agent.config.wall == make_agent("frontier").config.wall  # the rest as default
+    assert make_agent("wall", config={"safety": {"margin": 0.3}}).config.safety.margin == 0.3
+    with pytest.raises(ValueError, match=r"frontier agent\.safety: unknown key 'marg'"):
+        make_agent("frontier", config={"safety": {"marg": 0.2}})
+    with pytest.raises(ValueError, match="random agent has no settings"):
+        make_agent("random", config={"speed": 1})
+    with pytest.raises(ValueError, match="reach_distance must be > 0"):
+        make_agent("frontier", config={"reach_distance": -1.0})
+    with pytest.raises(ValueError, match="scripted agents by name"):
+        resolve_agent(RandomAgent(), agent_config={"reach_distance": 0.5})

@@ -44,6 +44,28 @@ def dataclass_from_dict(cls: type[T], data: Mapping[str, Any], where: str | None
     return cls(**dict(data))
 
 
+def nested_dataclass_from_dict(
+    cls: type[T], data: Mapping[str, Any], where: str | None = None
+) -> T:
+    """:func:`dataclass_from_dict` that also builds nested config fields from mappings.
+
+    A field whose default is itself a dataclass (a ``WallFollowerConfig`` inside a
+    ``FrontierConfig``, say) takes a mapping of that class's fields, checked the same way
+    and named ``where.field`` in errors. ``cls`` must be constructible without arguments.
+    """
+    where = where or cls.__name__
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{where}: a mapping of fields is needed, got {data!r}")
+    defaults = cls()
+    built = {}
+    for key, value in data.items():
+        inner = getattr(defaults, key, None)
+        if isinstance(value, Mapping) and dataclasses.is_dataclass(inner):
+            value = nested_dataclass_from_dict(type(inner), value, f"{where}.{key}")
+        built[key] = value
+    return dataclass_from_dict(cls, built, where)
+
+
 def check_integers(owner: Any, minimums: Mapping[str, int]) -> None:
     """Raise ``ValueError`` unless each named field of ``owner`` is an integer >= its minimum.
 
