@@ -60,6 +60,7 @@ import vslam_gym  # noqa: E402
 from agents.scripted import SCRIPTED_AGENTS, Agent, make_agent  # noqa: E402
 from vslam_gym.evaluation import (  # noqa: E402
     START_SCAN_MODES,
+    json_object,
     json_safe,
     loop_match_nees,
     loop_match_summary,
@@ -568,7 +569,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--agent-config",
         default=None,
-        type=json_mapping,
+        type=_agent_config_argument,
         help='settings of a scripted agent as JSON, e.g. \'{"reach_distance": 0.5, '
         '"safety": {"margin": 0.2}}\' for frontier (agents/scripted.py: FrontierConfig, '
         "WallFollowerConfig, RouteAgentConfig)",
@@ -615,15 +616,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def json_mapping(text: str) -> dict[str, Any]:
-    """An argparse type: a JSON object (``--agent-config``); anything else is a usage error."""
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise argparse.ArgumentTypeError(f"not valid JSON: {exc}") from None
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError(f"a JSON object is needed, got {text!r}")
-    return value
+def _agent_config_argument(text: str) -> dict[str, Any]:
+    """``--agent-config``: a JSON object (checked when the agent is made)."""
+    return json_object(text, "--agent-config")
 
 
 def training_differences(agent: str, args: argparse.Namespace) -> list[str]:

@@ -1640,18 +1640,27 @@ def name_or_mapping(text: str) -> str | dict[str, Any]:
         raise argparse.ArgumentTypeError(f"neither a preset name nor valid JSON: {exc}") from None
 
 
+def json_object(text: str, option: str) -> dict[str, Any]:
+    """The JSON object ``text`` of a command-line ``option``, else a usage error naming it.
+
+    Raises ``argparse.ArgumentTypeError`` for malformed JSON or JSON that is not an object.
+    """
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"{option} must be a JSON object: {exc}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"{option} must be a JSON object, got {text!r}")
+    return value
+
+
 def _overrides_argument(text: str) -> dict[str, Any]:
     """``--set`` (``evaluate``, ``replay``): a JSON object of configuration sections.
 
     Checked by :meth:`SlamConfig.from_dict`; unknown sections or keys raise
     ``argparse.ArgumentTypeError`` (a usage error) naming them.
     """
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise argparse.ArgumentTypeError(f"--set must be a JSON object: {exc}") from None
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError(f"--set must be a JSON object, got {text!r}")
+    value = json_object(text, "--set")
     if "preset" in value:
         raise argparse.ArgumentTypeError("--set takes configuration sections; use --preset")
     try:
