@@ -493,7 +493,7 @@ def evaluate_agent(
         raise ValueError(
             f"{env_id} has no SLAM wrapper: evaluate on an exploration id "
             f"({', '.join(i for i in gym.registry if i.startswith('VSlam/Explore'))})"
-        ) from None
+        )
     horizon = env.spec.max_episode_steps if env.spec is not None else None
     horizon = max_steps or horizon
     bar = progress_bar(episodes * horizon if horizon else None, "evaluate", progress, leave=True)
