@@ -106,6 +106,10 @@ def test_loop_closes_and_revisited_object_is_associated():
         ([0.0, 1e10, 0.0], np.ones(181), "translation must be at most 30.0 m"),
         ([1e155, 0.0, 0.0], np.ones(181), "rotations rot1, rot2"),
         (["a", 0.1, 0.0], np.ones(181), "3 numbers"),
+        # ranges that numpy would cast: True as 1 m, a complex number as its real part
+        ([0.0, 0.1, 0.0], np.ones(181, dtype=bool), "ranges must hold real numbers"),
+        ([0.0, 0.1, 0.0], np.ones(181) + 1j, "ranges must hold real numbers"),
+        ([0.0, 0.1, 0.0], np.array(["1"] * 181), "ranges must hold real numbers"),
     ],
 )
 def test_rejected_input_leaves_the_belief_unchanged(odometry, ranges, match):

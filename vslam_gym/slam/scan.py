@@ -9,6 +9,7 @@ rejected scan never leaves a half-updated estimate.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -44,8 +45,7 @@ class Scan:
                 values, negative ranges, bearings not strictly descending or outside the
                 field of view.
         """
-        r = np.array(ranges, dtype=float, copy=True)
-        phi = np.array(bearings, dtype=float, copy=True)
+        r, phi = _real_array(ranges, "ranges"), _real_array(bearings, "bearings")
         if r.ndim != 1 or phi.ndim != 1:
             raise ScanError(
                 f"ranges and bearings must be 1-D arrays, got shapes {r.shape} and {phi.shape}"
@@ -92,3 +92,18 @@ class Scan:
     def returns(self) -> np.ndarray:
         """``(n,)`` bool: True where the beam hit something (range below max range)."""
         return self.ranges < self.max_range
+
+
+def _real_array(values: Any, name: str) -> np.ndarray:
+    """A float copy of ``values``, or a :class:`ScanError` naming ``name``.
+
+    Numbers only: booleans, complex numbers and strings are refused rather than cast
+    (``True`` as 1 m, ``1 + 2j`` as its real part).
+    """
+    try:
+        raw = np.asarray(values)
+    except (TypeError, ValueError) as exc:  # ragged nested sequences
+        raise ScanError(f"{name} must be an array of numbers: {exc}") from None
+    if raw.dtype.kind not in "iuf" and not (raw.dtype.kind == "O" and raw.size == 0):
+        raise ScanError(f"{name} must hold real numbers, got dtype {raw.dtype}")
+    return np.array(raw, dtype=float, copy=True)
