@@ -89,6 +89,7 @@ def _collect(
     gamma: float,
     policy_path: str | None = None,
     expert_fraction: float = 1.0,
+    agent_config: dict[str, Any] | None = None,
 ) -> Demonstrations:
     """One worker: ``steps`` steps over episodes on worlds ``seed, seed + 1, ...``.
 
@@ -96,7 +97,7 @@ def _collect(
     except with probability ``expert_fraction``; the agent's action is recorded always.
     """
     env = gym.make(vslam_gym.explore_spec(env_id, **wrapper_kwargs))
-    agent = make_agent(agent_name, seed)
+    agent = make_agent(agent_name, seed, agent_config)
     policy = None
     if policy_path is not None:
         from stable_baselines3 import PPO
@@ -139,6 +140,7 @@ def collect_demonstrations(
     gamma: float = 0.99,
     policy_path: str | None = None,
     expert_fraction: float = 1.0,
+    agent_config: dict[str, Any] | None = None,
 ) -> Demonstrations:
     """Record ``steps`` steps of a scripted agent, split over ``workers`` processes.
 
@@ -158,6 +160,7 @@ def collect_demonstrations(
             agent still labels every step.
         expert_fraction: with ``policy_path``, probability that the agent's own action
             is executed at a step.
+        agent_config: the scripted agent's settings (``agents.scripted.make_agent``).
 
     Returns:
         The demonstrations, workers concatenated.
@@ -167,9 +170,20 @@ def collect_demonstrations(
     if not 0.0 <= expert_fraction <= 1.0:
         raise ValueError(f"expert_fraction must lie in [0, 1], got {expert_fraction}")
     kwargs = dict(wrapper_kwargs or {})
+    make_agent(agent, seed, agent_config)  # bad settings fail here, not in a worker
     shares = [steps // workers + (1 if i < steps % workers else 0) for i in range(workers)]
     jobs = [
-        (env_id, agent, n, seed + 1000 * i, kwargs, gamma, policy_path, expert_fraction)
+        (
+            env_id,
+            agent,
+            n,
+            seed + 1000 * i,
+            kwargs,
+            gamma,
+            policy_path,
+            expert_fraction,
+            agent_config,
+        )
         for i, n in enumerate(shares)
         if n > 0
     ]
@@ -263,6 +277,7 @@ def clone_agent(
     expert_fraction: float = 0.5,
     work_dir: Path | None = None,
     seed: int = 0,
+    agent_config: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Fit ``model``'s policy to a scripted agent: behaviour cloning, then DAgger rounds.
 
@@ -274,7 +289,8 @@ def clone_agent(
 
     Args:
         model: a PPO model, fitted in place.
-        env_id, agent, workers, wrapper_kwargs, gamma: see :func:`collect_demonstrations`.
+        env_id, agent, workers, wrapper_kwargs, gamma, agent_config: see
+            :func:`collect_demonstrations`.
         steps: steps recorded per round.
         rounds: 1 (behaviour cloning only) or more.
         epochs: cloning passes per round.
@@ -310,6 +326,7 @@ def clone_agent(
                 gamma=gamma,
                 policy_path=policy_path,
                 expert_fraction=expert_fraction if r > 0 else 1.0,
+                agent_config=agent_config,
             )
         )
         collected = time.perf_counter()
@@ -325,4 +342,4 @@ def clone_agent(
                 "clone_s": time.perf_counter() - collected,
             }
         )
-    return {"agent": agent, "rounds": record}
+    return {"agent": agent, "agent_config": dict(agent_config or {}), "rounds": record}

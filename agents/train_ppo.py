@@ -41,7 +41,7 @@ if __package__ in (None, ""):  # run as a script: make the repository root impor
 import gymnasium as gym  # noqa: E402
 
 import vslam_gym  # noqa: E402
-from vslam_gym.evaluation import name_or_mapping  # noqa: E402
+from vslam_gym.evaluation import json_object, name_or_mapping  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -138,6 +138,7 @@ def train(
     imitation_rounds: int = 1,
     frontier_cue: int = 0,
     shield: bool = False,
+    imitate_config: dict[str, Any] | None = None,
 ) -> Path:
     """Train PPO and save ``out/final_model.zip``; returns its path.
 
@@ -172,6 +173,8 @@ def train(
             the map (the wrapper's ``frontier`` key); 0: the registration's observation.
         shield: train (and collect demonstrations) under the wrapper's speed shield
             (:class:`vslam_gym.shield.SpeedShield`); evaluate with ``--shield`` too.
+        imitate_config: settings of the imitated scripted agent
+            (:func:`agents.scripted.make_agent`), e.g. ``{"reach_distance": 0.5}``.
     """
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
@@ -184,10 +187,13 @@ def train(
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     if imitate is not None:
-        from agents.scripted import SCRIPTED_AGENTS
+        from agents.scripted import SCRIPTED_AGENTS, make_agent
 
         if imitate not in SCRIPTED_AGENTS:
             raise ValueError(f"--imitate must be one of {sorted(SCRIPTED_AGENTS)}, got {imitate!r}")
+        make_agent(imitate, seed, imitate_config)  # bad settings fail before any work
+    elif imitate_config:
+        raise ValueError("imitate_config needs an agent to imitate (--imitate)")
     vec_env = make_vec_env(
         make_env_fn(env_id, seed, reward, slam_preset, frontier_cue, shield),
         n_envs=n_envs,
@@ -249,6 +255,7 @@ def train(
             gamma=settings.gamma,
             work_dir=out,
             seed=seed,
+            agent_config=imitate_config,
         )
         model.save(out / "bc_model.zip")
         if progress_bar:
@@ -327,6 +334,12 @@ def main(argv: list[str] | None = None) -> int:
         "--imitation-rounds", type=int, default=1, help="1: cloning; more: DAgger rounds"
     )
     parser.add_argument(
+        "--imitate-config",
+        default=None,
+        type=lambda text: json_object(text, "--imitate-config"),
+        help="settings of the --imitate agent as JSON, as evaluate_agents.py --agent-config",
+    )
+    parser.add_argument(
         "--frontier-cue",
         type=int,
         default=0,
@@ -340,7 +353,22 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     reward = args.reward
     settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
-    path = train(
+    try:
+        path = _train_from(args, reward, settings)
+    except ValueError as err:  # bad settings: named, no traceback
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    config = json.loads((args.out / "train_config.json").read_text())
+    print(
+        f"saved {path}: {config['trained_timesteps']} steps in {config['wall_s']:.0f} s "
+        f"({config['steps_per_s']:.1f} steps/s)"
+    )
+    return 0
+
+
+def _train_from(args: argparse.Namespace, reward: Any, settings: PpoSettings) -> Path:
+    """:func:`train` with the command line's arguments."""
+    return train(
         args.env,
         args.timesteps,
         args.out,
@@ -359,13 +387,8 @@ def main(argv: list[str] | None = None) -> int:
         imitation_rounds=args.imitation_rounds,
         frontier_cue=args.frontier_cue,
         shield=args.shield,
+        imitate_config=args.imitate_config,
     )
-    config = json.loads((args.out / "train_config.json").read_text())
-    print(
-        f"saved {path}: {config['trained_timesteps']} steps in {config['wall_s']:.0f} s "
-        f"({config['steps_per_s']:.1f} steps/s)"
-    )
-    return 0
 
 
 if __name__ == "__main__":

@@ -138,3 +138,19 @@ def test_dagger_round_is_driven_by_the_policy_and_labelled_by_the_agent(tmp_path
     with pytest.raises(ValueError, match="work_dir"):
         clone_agent(model, ENV, "wall", steps=3, rounds=2)
     env.close()
+
+
+def test_demonstrations_of_a_configured_agent_and_bad_settings(tmp_path):
+    """The imitated agent's settings reach the workers; bad ones fail before any work."""
+    slow = {"safety": {"cruise_speed": 0.2}}
+    fast = collect_demonstrations(ENV, "wall", steps=30, seed=3, workers=1)
+    tuned = collect_demonstrations(ENV, "wall", steps=30, seed=3, workers=1, agent_config=slow)
+    assert len(tuned) == 30
+    # the wall follower drives at its cruise speed: a slower one commands less forward
+    assert tuned.actions[:, 0].max() < fast.actions[:, 0].max()
+    with pytest.raises(ValueError, match="unknown key 'cruise'"):
+        collect_demonstrations(ENV, "wall", steps=30, workers=2, agent_config={"cruise": 1})
+    with pytest.raises(ValueError, match="needs an agent to imitate"):
+        train(ENV, 10, tmp_path / "a", imitate_config={"reach_distance": 1.0})
+    with pytest.raises(ValueError, match="unknown key 'reach'"):
+        train(ENV, 10, tmp_path / "b", imitate="frontier", imitate_config={"reach": 1.0})
