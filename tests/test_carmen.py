@@ -357,3 +357,17 @@ def test_a_bad_max_range_param_names_its_line(tmp_path: Path) -> None:
     )
     with pytest.raises(CarmenFormatError, match="laser_front_laser_max_range must be finite"):
         read_carmen(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("name", ["laser_front_laser_resolution", "laser_front_laser_fov"])
+def test_a_beam_geometry_param_that_is_no_number_is_named(tmp_path: Path, name: str) -> None:
+    text = SMALL_LOG + f"\nPARAM {name} abc\n"  # the last occurrence counts
+    with pytest.raises(CarmenFormatError, match=f"PARAM {name} must be a number, got 'abc'"):
+        read_carmen(write(tmp_path, text))
+
+
+def test_a_file_that_is_not_utf8_is_named(tmp_path: Path) -> None:
+    path = tmp_path / "latin1.log"
+    path.write_bytes(SMALL_LOG.encode("utf-8") + "PARAM robot caf\u00e9\n".encode("latin-1"))
+    with pytest.raises(CarmenFormatError, match="latin1.log: not UTF-8 text"):
+        read_carmen(path)

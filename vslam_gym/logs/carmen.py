@@ -238,7 +238,7 @@ def _lines(stream: IO[str]) -> Iterator[tuple[int, list[str]]]:
 
 
 def _param_length(params: dict[str, str], name: str) -> float:
-    """A ``PARAM`` that must be a positive finite length [m]."""
+    """A ``PARAM`` that must be a positive finite number (a length [m], an angle [deg])."""
     try:
         value = float(params[name])
     except ValueError:
@@ -256,8 +256,9 @@ def _bearings(num_beams: int, params: dict[str, str], config: CarmenConfig) -> n
     ``fov`` from ``laser_front_laser_fov`` (else ``n * res``): 180 beams at 1 deg give
     ``-90 .. +89 deg``; ``config.bearing_offset_deg`` is added to every one.
     """
-    res = float(params.get(PARAM_RESOLUTION, config.resolution_deg))
-    fov = float(params.get(PARAM_FOV, num_beams * res))
+    res = _param_length(params, PARAM_RESOLUTION) if PARAM_RESOLUTION in params else None
+    res = config.resolution_deg if res is None else res
+    fov = _param_length(params, PARAM_FOV) if PARAM_FOV in params else num_beams * res
     carmen = np.deg2rad(-fov / 2.0 + config.bearing_offset_deg + res * np.arange(num_beams))
     return carmen[::-1].copy()
 
@@ -336,6 +337,10 @@ def read_carmen(
                 params[fields[0]] = fields[1]
             else:
                 skipped[kind] += 1
+    except UnicodeDecodeError as exc:  # a binary or differently encoded file
+        raise CarmenFormatError(
+            f"{name}: not UTF-8 text ({exc.reason} at byte {exc.start})"
+        ) from None
     finally:
         if owned:
             stream.close()
