@@ -269,3 +269,10 @@ def test_random_worlds_follow_the_seed():
 def test_constructor_arguments_of_the_wrong_type_are_named(kwargs, message):
     with pytest.raises(ValueError, match=message):
         LidarWorldEnv(world="small", **kwargs)
+
+
+def test_reset_options_are_not_silently_ignored():
+    env = gym.make("VSlam/LidarWorld-v0", world="small")
+    env.reset(seed=0, options={})  # empty: as no options
+    with pytest.raises(ValueError, match=r"takes no options .* got \['world'\]"):
+        env.reset(seed=0, options={"world": "house"})

@@ -282,7 +282,16 @@ class LidarWorldEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Start an episode at the world's start pose; see the class docstring."""
+        """Start an episode at the world's start pose; see the class docstring.
+
+        ``options`` takes no keys (world, lidar and noise are constructor arguments); a
+        non-empty mapping raises ``ValueError`` naming its keys rather than being ignored.
+        """
+        if options:
+            raise ValueError(
+                f"LidarWorldEnv.reset takes no options (set the world, lidar and noise when "
+                f"making the env), got {sorted(options)}"
+            )
         super().reset(seed=seed)
         world = self._make_world()
         if self._lidar is None or world is not self.world:
