@@ -354,7 +354,27 @@ def main(argv: list[str] | None = None) -> int:
     reward = args.reward
     settings = PpoSettings(n_steps=args.n_steps, batch_size=args.batch_size)
     try:
-        path = _train_from(args, reward, settings)
+        path = train(
+            args.env,
+            args.timesteps,
+            args.out,
+            n_envs=args.n_envs,
+            seed=args.seed,
+            reward=reward,
+            settings=settings,
+            checkpoint_every=args.checkpoint_every,
+            tensorboard=args.tensorboard,
+            progress_bar=not args.no_progress,
+            max_minutes=args.max_minutes,
+            slam_preset=args.slam_preset,
+            imitate=args.imitate,
+            imitation_steps=args.imitation_steps,
+            imitation_epochs=args.imitation_epochs,
+            imitation_rounds=args.imitation_rounds,
+            frontier_cue=args.frontier_cue,
+            shield=args.shield,
+            imitate_config=args.imitate_config,
+        )
     except ValueError as err:  # bad settings: named, no traceback
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -364,31 +384,6 @@ def main(argv: list[str] | None = None) -> int:
         f"({config['steps_per_s']:.1f} steps/s)"
     )
     return 0
-
-
-def _train_from(args: argparse.Namespace, reward: Any, settings: PpoSettings) -> Path:
-    """:func:`train` with the command line's arguments."""
-    return train(
-        args.env,
-        args.timesteps,
-        args.out,
-        n_envs=args.n_envs,
-        seed=args.seed,
-        reward=reward,
-        settings=settings,
-        checkpoint_every=args.checkpoint_every,
-        tensorboard=args.tensorboard,
-        progress_bar=not args.no_progress,
-        max_minutes=args.max_minutes,
-        slam_preset=args.slam_preset,
-        imitate=args.imitate,
-        imitation_steps=args.imitation_steps,
-        imitation_epochs=args.imitation_epochs,
-        imitation_rounds=args.imitation_rounds,
-        frontier_cue=args.frontier_cue,
-        shield=args.shield,
-        imitate_config=args.imitate_config,
-    )
 
 
 if __name__ == "__main__":

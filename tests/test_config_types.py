@@ -27,6 +27,8 @@ from vslam_gym.slam.filter import SlamConfig, VertexSLAM
         ("icp", "tol_translation", [1e-3], "a number"),
         ("model", "unknown_threshold", None, "a number"),
         ("filter", "prealign", 3, "a string"),
+        ("filter", "loop_closure", "false", "a bool"),
+        ("matcher", "fit_keyframe_points", 1, "a bool"),
     ],
 )
 def test_wrong_types_are_named(section, name, bad, expected):

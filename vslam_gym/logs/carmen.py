@@ -256,8 +256,9 @@ def _bearings(num_beams: int, params: dict[str, str], config: CarmenConfig) -> n
     ``fov`` from ``laser_front_laser_fov`` (else ``n * res``): 180 beams at 1 deg give
     ``-90 .. +89 deg``; ``config.bearing_offset_deg`` is added to every one.
     """
-    res = _param_length(params, PARAM_RESOLUTION) if PARAM_RESOLUTION in params else None
-    res = config.resolution_deg if res is None else res
+    res = config.resolution_deg
+    if PARAM_RESOLUTION in params:
+        res = _param_length(params, PARAM_RESOLUTION)
     fov = _param_length(params, PARAM_FOV) if PARAM_FOV in params else num_beams * res
     carmen = np.deg2rad(-fov / 2.0 + config.bearing_offset_deg + res * np.arange(num_beams))
     return carmen[::-1].copy()

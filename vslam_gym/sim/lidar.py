@@ -60,6 +60,23 @@ MAX_BEAMS = 36_001
 """Most beams of one scan (0.01 deg over a full circle): more is a units mistake."""
 
 
+def resolution_problem(fov_deg: float, resolution_deg: float) -> str | None:
+    """Why ``resolution_deg`` cannot split ``fov_deg`` [deg] into beams, or None.
+
+    The beam steps must be a whole number (within :data:`BEAM_COUNT_TOL`) and give at
+    most :data:`MAX_BEAMS` beams. Shared by the env's lidar check and the world files'.
+    """
+    steps = fov_deg / resolution_deg
+    if resolution_deg > fov_deg or abs(steps - round(steps)) > BEAM_COUNT_TOL:
+        return (
+            f"must divide fov_deg ({fov_deg:g}) into a whole number of steps, "
+            f"got {resolution_deg!r}"
+        )
+    if round(steps) + 1 > MAX_BEAMS:
+        return f"gives {round(steps) + 1} beams, more than {MAX_BEAMS} (got {resolution_deg!r})"
+    return None
+
+
 def check_lidar_spec(spec: LidarSpec) -> LidarSpec:
     """Return ``spec`` after checking that all its fields are usable; else raise."""
     for name in ("fov_deg", "resolution_deg", "max_range", "sigma_range", "sigma_bearing_deg"):
@@ -70,17 +87,9 @@ def check_lidar_spec(spec: LidarSpec) -> LidarSpec:
         raise LidarError(f"lidar fov_deg must be in (0, 360], got {spec.fov_deg}")
     if not 0.0 < spec.resolution_deg <= spec.fov_deg:
         raise LidarError(f"lidar resolution_deg must be in (0, fov_deg], got {spec.resolution_deg}")
-    steps = spec.fov_deg / spec.resolution_deg
-    if abs(steps - round(steps)) > BEAM_COUNT_TOL:
-        raise LidarError(
-            f"lidar resolution_deg must divide fov_deg ({spec.fov_deg:g}) into a whole number "
-            f"of steps, got {spec.resolution_deg!r}"
-        )
-    if round(steps) + 1 > MAX_BEAMS:
-        raise LidarError(
-            f"lidar resolution_deg {spec.resolution_deg!r} gives {round(steps) + 1} beams, "
-            f"more than {MAX_BEAMS}"
-        )
+    problem = resolution_problem(spec.fov_deg, spec.resolution_deg)
+    if problem is not None:
+        raise LidarError(f"lidar resolution_deg {problem}")
     if spec.max_range <= 0.0:
         raise LidarError(f"lidar max_range must be > 0 m, got {spec.max_range}")
     if spec.sigma_range < 0.0 or spec.sigma_bearing_deg < 0.0:

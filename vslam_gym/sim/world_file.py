@@ -25,7 +25,7 @@ import numpy as np
 
 from vslam_gym.config_utils import UnknownKeyError, check_keys
 from vslam_gym.sim import shapes
-from vslam_gym.sim.lidar import BEAM_COUNT_TOL, MAX_BEAMS
+from vslam_gym.sim.lidar import resolution_problem
 from vslam_gym.sim.world import (
     CircleObstacle,
     LidarSpec,
@@ -225,15 +225,9 @@ def _parse_lidar(p: _Parser, raw: object) -> LidarSpec:
     spec = LidarSpec(**values)
     if spec.fov_deg > _FULL_CIRCLE_DEG:
         p.fail("lidar.fov_deg", f"must be <= {_FULL_CIRCLE_DEG:g}, got {spec.fov_deg!r}")
-    steps = spec.fov_deg / spec.resolution_deg
-    if spec.resolution_deg > spec.fov_deg or abs(steps - round(steps)) > BEAM_COUNT_TOL:
-        p.fail(
-            "lidar.resolution_deg",
-            f"must divide fov_deg ({spec.fov_deg:g}) into a whole number of steps, "
-            f"got {spec.resolution_deg!r}",
-        )
-    if round(steps) + 1 > MAX_BEAMS:
-        p.fail("lidar.resolution_deg", f"gives {round(steps) + 1} beams, more than {MAX_BEAMS}")
+    problem = resolution_problem(spec.fov_deg, spec.resolution_deg)
+    if problem is not None:
+        p.fail("lidar.resolution_deg", problem)
     return spec
 
 

@@ -1111,12 +1111,8 @@ class FilterConfig:
             "odometry_sigma_floor",
             "initial_pose_sigma",
         ):
-            self._sigma_triple(name)
-        self._sigma_triple("odometry_alphas", 4)
-        for name in ("prune_merge", "loop_closure", "error_creation_pose_update"):
-            value = getattr(self, name)
-            if not isinstance(value, bool):
-                raise ValueError(f"FilterConfig.{name} must be a bool, got {value!r}")
+            self._nonnegative_numbers(name)
+        self._nonnegative_numbers("odometry_alphas", 4)
         check_intervals(
             self,
             {
@@ -1209,7 +1205,7 @@ class FilterConfig:
                 f"FilterConfig.prealign must be one of {PREALIGN_MODES}, got {self.prealign!r}"
             )
 
-    def _sigma_triple(self, name: str, size: int = 3) -> None:
+    def _nonnegative_numbers(self, name: str, size: int = 3) -> None:
         """Check ``size`` finite numbers >= 0 and store them as a tuple (hashable)."""
         value = getattr(self, name)
         try:

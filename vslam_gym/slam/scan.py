@@ -104,6 +104,6 @@ def _real_array(values: Any, name: str) -> np.ndarray:
         raw = np.asarray(values)
     except (TypeError, ValueError) as exc:  # ragged nested sequences
         raise ScanError(f"{name} must be an array of numbers: {exc}") from None
-    if raw.dtype.kind not in "iuf" and not (raw.dtype.kind == "O" and raw.size == 0):
+    if raw.dtype.kind not in "iuf":
         raise ScanError(f"{name} must hold real numbers, got dtype {raw.dtype}")
     return np.array(raw, dtype=float, copy=True)

@@ -310,11 +310,6 @@ class ScanMatcherConfig:
                 f"ScanMatcherConfig.hypothesis_spacing must be one of {HYPOTHESIS_SPACINGS}, "
                 f"got {self.hypothesis_spacing!r}"
             )
-        if not isinstance(self.fit_keyframe_points, bool):
-            raise ValueError(
-                "ScanMatcherConfig.fit_keyframe_points must be a bool, got "
-                f"{self.fit_keyframe_points!r}"
-            )
         if not (np.isfinite(self.normal_agreement_deg) and 0 <= self.normal_agreement_deg <= 90):
             raise ValueError(
                 "ScanMatcherConfig.normal_agreement_deg must lie in [0, 90] (0: off), got "
